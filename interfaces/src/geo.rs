@@ -1,0 +1,189 @@
+//! The local ENU (east, north, up) frame that poses, goals and maps live in,
+//! anchored at a configured GPS fix or at the first fix received.
+//!
+//! Conversions go through WGS84 ECEF, so they stay exact over the
+//! kilometre-scale ranges FITAM plans over (a flat-earth approximation is off
+//! by metres at 5 km).
+
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+
+const WGS84_A: f64 = 6_378_137.0;
+const WGS84_F: f64 = 1.0 / 298.257_223_563;
+const WGS84_E2: f64 = WGS84_F * (2.0 - WGS84_F);
+
+/// A point on the WGS84 ellipsoid.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct GeoPoint {
+    pub latitude_deg: f64,
+    pub longitude_deg: f64,
+    #[serde(default)]
+    pub altitude_m: f64,
+}
+
+/// A latitude or longitude outside its range.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{field} = {value} is outside [{min}, {max}] degrees")]
+pub struct GeoRangeError {
+    pub field: &'static str,
+    pub value: f64,
+    pub min: f64,
+    pub max: f64,
+}
+
+impl GeoPoint {
+    pub fn new(latitude_deg: f64, longitude_deg: f64, altitude_m: f64) -> Result<Self, GeoRangeError> {
+        let check = |field, value: f64, lim: f64| {
+            if value.is_finite() && value.abs() <= lim {
+                Ok(())
+            } else {
+                Err(GeoRangeError {
+                    field,
+                    value,
+                    min: -lim,
+                    max: lim,
+                })
+            }
+        };
+        check("latitude_deg", latitude_deg, 90.0)?;
+        check("longitude_deg", longitude_deg, 180.0)?;
+        Ok(Self {
+            latitude_deg,
+            longitude_deg,
+            altitude_m,
+        })
+    }
+
+    fn to_ecef(self) -> Vector3<f64> {
+        let (lat, lon) = (self.latitude_deg.to_radians(), self.longitude_deg.to_radians());
+        let n = WGS84_A / (1.0 - WGS84_E2 * lat.sin().powi(2)).sqrt();
+        Vector3::new(
+            (n + self.altitude_m) * lat.cos() * lon.cos(),
+            (n + self.altitude_m) * lat.cos() * lon.sin(),
+            (n * (1.0 - WGS84_E2) + self.altitude_m) * lat.sin(),
+        )
+    }
+
+    fn from_ecef(p: Vector3<f64>) -> Self {
+        let lon = p.y.atan2(p.x);
+        let rho = (p.x * p.x + p.y * p.y).sqrt();
+        let mut lat = p.z.atan2(rho * (1.0 - WGS84_E2));
+        let mut alt = 0.0;
+        // Fixed-point iteration converges to sub-millimetre in a handful of steps.
+        for _ in 0..8 {
+            let n = WGS84_A / (1.0 - WGS84_E2 * lat.sin().powi(2)).sqrt();
+            alt = rho / lat.cos() - n;
+            lat = p.z.atan2(rho * (1.0 - WGS84_E2 * n / (n + alt)));
+        }
+        Self {
+            latitude_deg: lat.to_degrees(),
+            longitude_deg: lon.to_degrees(),
+            altitude_m: alt,
+        }
+    }
+}
+
+/// A local tangent plane at an anchor fix.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LocalEnuFrame {
+    anchor: GeoPoint,
+    anchor_ecef: Vector3<f64>,
+    enu_from_ecef: Matrix3<f64>,
+}
+
+impl LocalEnuFrame {
+    pub fn new(anchor: GeoPoint) -> Self {
+        let (lat, lon) = (
+            anchor.latitude_deg.to_radians(),
+            anchor.longitude_deg.to_radians(),
+        );
+        let (sl, cl, so, co) = (lat.sin(), lat.cos(), lon.sin(), lon.cos());
+        let enu_from_ecef = Matrix3::new(
+            -so, co, 0.0, //
+            -sl * co, -sl * so, cl, //
+            cl * co, cl * so, sl,
+        );
+        Self {
+            anchor,
+            anchor_ecef: anchor.to_ecef(),
+            enu_from_ecef,
+        }
+    }
+
+    pub fn anchor(&self) -> GeoPoint {
+        self.anchor
+    }
+
+    /// East, north, up of `p` in metres.
+    pub fn to_enu(&self, p: GeoPoint) -> Vector3<f64> {
+        self.enu_from_ecef * (p.to_ecef() - self.anchor_ecef)
+    }
+
+    /// The geodetic point at `enu` metres from the anchor.
+    pub fn to_geodetic(&self, enu: Vector3<f64>) -> GeoPoint {
+        GeoPoint::from_ecef(self.anchor_ecef + self.enu_from_ecef.transpose() * enu)
+    }
+}
+
+/// Holds the ENU frame: a configured anchor, or the first valid fix seen.
+#[derive(Debug, Clone, Default)]
+pub struct EnuAnchor {
+    frame: Option<LocalEnuFrame>,
+}
+
+impl EnuAnchor {
+    pub fn configured(anchor: GeoPoint) -> Self {
+        Self {
+            frame: Some(LocalEnuFrame::new(anchor)),
+        }
+    }
+
+    /// Anchors at the first fix if no anchor is set; returns the frame.
+    pub fn observe_fix(&mut self, fix: GeoPoint) -> &LocalEnuFrame {
+        self.frame.get_or_insert_with(|| LocalEnuFrame::new(fix))
+    }
+
+    pub fn frame(&self) -> Option<&LocalEnuFrame> {
+        self.frame.as_ref()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn enu_axes_and_round_trip() {
+        let anchor = GeoPoint::new(40.4406, -79.9959, 300.0).unwrap();
+        let f = LocalEnuFrame::new(anchor);
+        assert!(f.to_enu(anchor).norm() < 1e-6);
+        // 0.001 deg north is about 111 m north, nothing east.
+        let north = f.to_enu(GeoPoint::new(40.4416, -79.9959, 300.0).unwrap());
+        assert!((north.y - 111.04).abs() < 0.2, "{north}");
+        assert!(north.x.abs() < 1e-6);
+        // East is east: longitude grows eastwards.
+        let east = f.to_enu(GeoPoint::new(40.4406, -79.9949, 300.0).unwrap());
+        assert!(east.x > 84.0 && east.x < 85.5, "{east}");
+        // 5 km away the round trip stays at millimetres.
+        let p = Vector3::new(3000.0, -4000.0, 12.0);
+        let back = f.to_enu(f.to_geodetic(p));
+        assert!((back - p).norm() < 1e-3, "{back}");
+    }
+
+    #[test]
+    fn bad_coordinates_are_named() {
+        let e = GeoPoint::new(91.0, 0.0, 0.0).unwrap_err();
+        assert_eq!(e.to_string(), "latitude_deg = 91 is outside [-90, 90] degrees");
+        assert!(GeoPoint::new(0.0, f64::NAN, 0.0).is_err());
+    }
+
+    #[test]
+    fn first_fix_anchors_once() {
+        let mut a = EnuAnchor::default();
+        assert!(a.frame().is_none());
+        let first = GeoPoint::new(1.0, 2.0, 0.0).unwrap();
+        a.observe_fix(first);
+        a.observe_fix(GeoPoint::new(3.0, 4.0, 0.0).unwrap());
+        assert_eq!(a.frame().unwrap().anchor(), first);
+    }
+}

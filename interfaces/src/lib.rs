@@ -1,0 +1,37 @@
+//! # farsight-interfaces
+//!
+//! The contracts between farsight stages, in the one crate every binary links
+//! (iceoryx2 requires shared-memory types to come from a single crate):
+//!
+//! - [`msg`]: the message types of every edge of the graph, each stamped with the
+//!   frame it was derived from;
+//! - [`topics`]: topic names and their iceoryx2 / zenoh spellings;
+//! - [`camera`]: pinhole and fisheye camera models and mounts;
+//! - [`geo`]: the local ENU frame that GPS goals are converted into;
+//! - [`transport`]: publish / latest-value subscribe over iceoryx2 and zenoh;
+//! - [`clock`]: injected time (wall clock on the robot, replay clock in tests).
+//!
+//! ```no_run
+//! use farsight_interfaces::{msg::*, topics, transport::ipc::Bus};
+//!
+//! // Publisher side: write a 640x360 RGB frame straight into shared memory.
+//! let bus = Bus::open("camera-ingest")?;
+//! let mut frames = bus.slice_publisher(&topics::camera_image("front"), 640 * 360 * 3)?;
+//! let header = ImageHeader::packed(Stamp::new(0, 0), 0, 640, 360, PixelEncoding::RGB8);
+//! frames.publish_with(header, 640 * 360 * 3, |pixels| pixels.fill(128))?;
+//!
+//! // Consumer side: read the newest frame in place.
+//! let mut sub = bus.slice_subscriber(&topics::camera_image("front"))?;
+//! if let Some(frame) = sub.latest()? {
+//!     frame.header().validate(frame.data().len())?;
+//! }
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+pub mod camera;
+pub mod clock;
+pub mod fixed;
+pub mod geo;
+pub mod msg;
+pub mod topics;
+pub mod transport;

@@ -1,0 +1,632 @@
+//! Zero-copy transport on the vehicle over iceoryx2 shared memory.
+//!
+//! Every topic is a publish-subscribe service paired with an event service of
+//! the same name: `publish` writes the message into shared memory once and
+//! notifies, and a stage sleeps on a WaitSet ([`wait_loop`]) until one of its
+//! inputs has news or its tick interval passes. Subscribers have latest-value
+//! semantics (buffer of one, safe overflow), read samples in place, and count
+//! what they skipped.
+//!
+//! Restarts: a SIGKILLed process leaves its node behind; [`Bus::open`] and
+//! [`Bus::cleanup_dead_nodes`] remove dead nodes so a restarted stage can
+//! reconnect, and port creation retries once after a clean-up when a service
+//! is full of dead ports. Test isolation: [`IpcSettings::prefix`] (env
+//! `FARSIGHT_IPC_PREFIX`) gives every test its own namespace.
+//!
+//! ```no_run
+//! use farsight_interfaces::{msg::*, topics, transport::ipc::Bus};
+//!
+//! let bus = Bus::open("example")?;
+//! let mut publisher = bus.publisher(&topics::velocity_command())?;
+//! let mut subscriber = bus.subscriber(&topics::velocity_command())?;
+//! publisher.publish(&VelocityCommand::stop(Stamp::new(1, 0), CommandReason::ESTOP))?;
+//! if let Some(cmd) = subscriber.latest()? {
+//!     assert_eq!(cmd.linear_mps, 0.0);
+//! }
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+use super::{SkipCounter, Stamped, TransportError};
+use crate::topics::{Slice, Topic};
+use core::fmt::Debug;
+use core::ops::ControlFlow;
+use core::time::Duration;
+use iceoryx2::node::Node;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher as IoxPublisher;
+use iceoryx2::port::subscriber::Subscriber as IoxSubscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::sample::Sample;
+use iceoryx2::waitset::WaitSetRunResult;
+
+/// Publishers per topic: one live one plus room for a restarted one whose
+/// predecessor has not been cleaned up yet.
+pub const MAX_PUBLISHERS: usize = 4;
+/// Subscribers per topic: the stages of the graph plus bridge, recorder and tools.
+pub const MAX_SUBSCRIBERS: usize = 12;
+/// Nodes per topic (live and not yet cleaned dead ones).
+pub const MAX_NODES: usize = 32;
+/// Samples a subscriber may hold at once: the one being processed and the
+/// newer one found while draining.
+const MAX_BORROWED: usize = 2;
+
+/// Where the iceoryx2 resources of this process live.
+#[derive(Debug, Clone, Default)]
+pub struct IpcSettings {
+    /// Prefix of every shared-memory resource; processes only see each other with
+    /// the same prefix. Default: iceoryx2's (`iox2_`).
+    pub prefix: Option<String>,
+    /// Root directory of iceoryx2's management files (default `/tmp/iceoryx2`;
+    /// the systemd deployment moves it under `/run`).
+    pub root: Option<String>,
+}
+
+impl IpcSettings {
+    /// Reads `FARSIGHT_IPC_PREFIX` and `FARSIGHT_IPC_ROOT`.
+    pub fn from_env() -> Self {
+        Self {
+            prefix: std::env::var("FARSIGHT_IPC_PREFIX")
+                .ok()
+                .filter(|s| !s.is_empty()),
+            root: std::env::var("FARSIGHT_IPC_ROOT")
+                .ok()
+                .filter(|s| !s.is_empty()),
+        }
+    }
+
+    fn config(&self) -> Result<Config, TransportError> {
+        let mut config = Config::global_config().clone();
+        if let Some(prefix) = &self.prefix {
+            config.global.prefix =
+                FileName::new(prefix.as_bytes()).map_err(|_| TransportError::Setting {
+                    key: "FARSIGHT_IPC_PREFIX",
+                    value: prefix.clone(),
+                    expected: "a short file name: letters, digits, '_', '-', '.'",
+                })?;
+        }
+        if let Some(root) = &self.root {
+            let path = iceoryx2::prelude::Path::new(root.as_bytes()).map_err(|_| {
+                TransportError::Setting {
+                    key: "FARSIGHT_IPC_ROOT",
+                    value: root.clone(),
+                    expected: "an absolute directory path",
+                }
+            })?;
+            config.global.set_root_path(&path);
+        }
+        Ok(config)
+    }
+}
+
+/// A process's connection to the vehicle bus (one iceoryx2 node).
+pub struct Bus {
+    node: Node<ipc::Service>,
+    name: String,
+}
+
+fn ipc_err(what: &'static str, topic: &str, e: impl Debug) -> TransportError {
+    TransportError::Ipc {
+        what,
+        topic: topic.to_string(),
+        detail: format!("{e:?}"),
+    }
+}
+
+impl Bus {
+    /// Opens the bus with settings from the environment.
+    pub fn open(node_name: &str) -> Result<Self, TransportError> {
+        Self::open_with(node_name, &IpcSettings::from_env())
+    }
+
+    /// Opens the bus, removing what dead processes left behind first.
+    pub fn open_with(node_name: &str, settings: &IpcSettings) -> Result<Self, TransportError> {
+        let config = settings.config()?;
+        let name = NodeName::new(node_name).map_err(|e| ipc_err("node name", node_name, e))?;
+        let node = NodeBuilder::new()
+            .name(&name)
+            .config(&config)
+            // The stage decides what to do on SIGTERM/SIGINT (wait_loop reports it).
+            .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
+            .create::<ipc::Service>()
+            .map_err(|e| ipc_err("node creation", node_name, e))?;
+        let bus = Self {
+            node,
+            name: node_name.to_string(),
+        };
+        let removed = bus.cleanup_dead_nodes();
+        if removed > 0 {
+            tracing::info!(removed, "cleaned up dead iceoryx2 nodes");
+        }
+        Ok(bus)
+    }
+
+    pub fn node(&self) -> &Node<ipc::Service> {
+        &self.node
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Removes the resources of nodes whose process died; returns how many.
+    pub fn cleanup_dead_nodes(&self) -> usize {
+        let state = self.node.try_cleanup_dead_nodes();
+        state.cleanups as usize
+    }
+
+    /// Runs `create`; if it fails (typically a service still full of a dead
+    /// process's ports), cleans up dead nodes and tries once more.
+    fn with_cleanup_retry<T, E: Debug>(
+        &self,
+        what: &'static str,
+        topic: &str,
+        mut create: impl FnMut() -> Result<T, E>,
+    ) -> Result<T, TransportError> {
+        match create() {
+            Ok(v) => Ok(v),
+            Err(first) => {
+                let removed = self.cleanup_dead_nodes();
+                tracing::debug!(topic, ?first, removed, "retrying {what} after dead-node clean-up");
+                create().map_err(|e| ipc_err(what, topic, e))
+            }
+        }
+    }
+
+    fn event_ports(
+        &self,
+        topic: &str,
+        service_name: &ServiceName,
+    ) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, TransportError>
+    {
+        self.with_cleanup_retry("event service", topic, || {
+            self.node
+                .service_builder(service_name)
+                .event()
+                .max_notifiers(MAX_PUBLISHERS)
+                .max_listeners(MAX_SUBSCRIBERS)
+                .max_nodes(MAX_NODES)
+                .open_or_create()
+        })
+    }
+
+    fn service_name(topic: &str) -> Result<ServiceName, TransportError> {
+        let full = crate::topics::ipc_service_name(topic);
+        ServiceName::new(&full).map_err(|e| ipc_err("service name", topic, e))
+    }
+
+    /// A publisher of fixed-size messages.
+    pub fn publisher<M: IpcMessage>(&self, topic: &Topic<M>) -> Result<Publisher<M>, TransportError> {
+        let name = Self::service_name(topic.name())?;
+        let service = self.with_cleanup_retry("publish-subscribe service", topic.name(), || {
+            self.node
+                .service_builder(&name)
+                .publish_subscribe::<M>()
+                .enable_safe_overflow(true)
+                .subscriber_max_buffer_size(1)
+                .history_size(1)
+                .subscriber_max_borrowed_samples(MAX_BORROWED)
+                .max_publishers(MAX_PUBLISHERS)
+                .max_subscribers(MAX_SUBSCRIBERS)
+                .max_nodes(MAX_NODES)
+                .open_or_create()
+        })?;
+        let port = self.with_cleanup_retry("publisher", topic.name(), || {
+            service.publisher_builder().create()
+        })?;
+        let events = self.event_ports(topic.name(), &name)?;
+        let notifier = self.with_cleanup_retry("notifier", topic.name(), || {
+            events.notifier_builder().create()
+        })?;
+        Ok(Publisher {
+            port,
+            notifier,
+            topic: topic.name().to_string(),
+            sent: 0,
+        })
+    }
+
+    /// A latest-value subscriber of fixed-size messages.
+    pub fn subscriber<M: IpcMessage>(
+        &self,
+        topic: &Topic<M>,
+    ) -> Result<Subscriber<M>, TransportError> {
+        let name = Self::service_name(topic.name())?;
+        let service = self.with_cleanup_retry("publish-subscribe service", topic.name(), || {
+            self.node
+                .service_builder(&name)
+                .publish_subscribe::<M>()
+                .enable_safe_overflow(true)
+                .subscriber_max_buffer_size(1)
+                .history_size(1)
+                .subscriber_max_borrowed_samples(MAX_BORROWED)
+                .max_publishers(MAX_PUBLISHERS)
+                .max_subscribers(MAX_SUBSCRIBERS)
+                .max_nodes(MAX_NODES)
+                .open_or_create()
+        })?;
+        let port = self.with_cleanup_retry("subscriber", topic.name(), || {
+            service.subscriber_builder().buffer_size(1).create()
+        })?;
+        let events = self.event_ports(topic.name(), &name)?;
+        let listener = self.with_cleanup_retry("listener", topic.name(), || {
+            events.listener_builder().create()
+        })?;
+        Ok(Subscriber {
+            port,
+            listener,
+            topic: topic.name().to_string(),
+            skips: SkipCounter::default(),
+        })
+    }
+
+    /// A publisher of header + slice messages whose slices hold at most
+    /// `max_len` elements. The shared memory is allocated once, up front: a
+    /// growing segment can lose samples when its publisher exits.
+    pub fn slice_publisher<H: IpcHeader, E: IpcElem>(
+        &self,
+        topic: &Topic<Slice<H, E>>,
+        max_len: usize,
+    ) -> Result<SlicePublisher<H, E>, TransportError> {
+        if max_len == 0 {
+            return Err(TransportError::Setting {
+                key: "max_len",
+                value: "0".into(),
+                expected: "at least one element",
+            });
+        }
+        let name = Self::service_name(topic.name())?;
+        let service = self.slice_service::<H, E>(topic.name(), &name)?;
+        let port = self.with_cleanup_retry("publisher", topic.name(), || {
+            service
+                .publisher_builder()
+                .initial_max_slice_len(max_len)
+                .allocation_strategy(AllocationStrategy::Static)
+                .create()
+        })?;
+        let events = self.event_ports(topic.name(), &name)?;
+        let notifier = self.with_cleanup_retry("notifier", topic.name(), || {
+            events.notifier_builder().create()
+        })?;
+        Ok(SlicePublisher {
+            port,
+            notifier,
+            topic: topic.name().to_string(),
+            max_len,
+            sent: 0,
+        })
+    }
+
+    /// A latest-value subscriber of header + slice messages.
+    pub fn slice_subscriber<H: IpcHeader, E: IpcElem>(
+        &self,
+        topic: &Topic<Slice<H, E>>,
+    ) -> Result<SliceSubscriber<H, E>, TransportError> {
+        let name = Self::service_name(topic.name())?;
+        let service = self.slice_service::<H, E>(topic.name(), &name)?;
+        let port = self.with_cleanup_retry("subscriber", topic.name(), || {
+            service.subscriber_builder().buffer_size(1).create()
+        })?;
+        let events = self.event_ports(topic.name(), &name)?;
+        let listener = self.with_cleanup_retry("listener", topic.name(), || {
+            events.listener_builder().create()
+        })?;
+        Ok(SliceSubscriber {
+            port,
+            listener,
+            topic: topic.name().to_string(),
+            skips: SkipCounter::default(),
+        })
+    }
+
+    fn slice_service<H: IpcHeader, E: IpcElem>(
+        &self,
+        topic: &str,
+        name: &ServiceName,
+    ) -> Result<
+        iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [E], H>,
+        TransportError,
+    > {
+        self.with_cleanup_retry("publish-subscribe service", topic, || {
+            self.node
+                .service_builder(name)
+                .publish_subscribe::<[E]>()
+                .user_header::<H>()
+                .enable_safe_overflow(true)
+                .subscriber_max_buffer_size(1)
+                .history_size(1)
+                .subscriber_max_borrowed_samples(MAX_BORROWED)
+                .max_publishers(MAX_PUBLISHERS)
+                .max_subscribers(MAX_SUBSCRIBERS)
+                .max_nodes(MAX_NODES)
+                .open_or_create()
+        })
+    }
+}
+
+/// A fixed-size message that can live in shared memory.
+pub trait IpcMessage: Debug + Copy + ZeroCopySend + Stamped + 'static {}
+impl<T: Debug + Copy + ZeroCopySend + Stamped + 'static> IpcMessage for T {}
+
+/// The header of a header + slice message.
+pub trait IpcHeader: Debug + Copy + Default + ZeroCopySend + Stamped + 'static {}
+impl<T: Debug + Copy + Default + ZeroCopySend + Stamped + 'static> IpcHeader for T {}
+
+/// An element of a slice payload.
+pub trait IpcElem: Debug + Copy + ZeroCopySend + bytemuck::Pod + 'static {}
+impl<T: Debug + Copy + ZeroCopySend + bytemuck::Pod + 'static> IpcElem for T {}
+
+/// Publishes fixed-size messages of one topic.
+pub struct Publisher<M: IpcMessage> {
+    port: IoxPublisher<ipc::Service, M, ()>,
+    notifier: Notifier<ipc::Service>,
+    topic: String,
+    sent: u64,
+}
+
+impl<M: IpcMessage> Publisher<M> {
+    /// Copies `msg` into shared memory and wakes the subscribers.
+    pub fn publish(&mut self, msg: &M) -> Result<(), TransportError> {
+        self.port
+            .send_copy(*msg)
+            .map_err(|e| ipc_err("send", &self.topic, e))?;
+        self.sent += 1;
+        // A listener that is gone is not this publisher's failure.
+        let _ = self.notifier.notify();
+        Ok(())
+    }
+
+    pub fn sent(&self) -> u64 {
+        self.sent
+    }
+
+    pub fn topic(&self) -> &str {
+        &self.topic
+    }
+}
+
+/// Receives the newest fixed-size message of one topic.
+pub struct Subscriber<M: IpcMessage> {
+    port: IoxSubscriber<ipc::Service, M, ()>,
+    listener: Listener<ipc::Service>,
+    topic: String,
+    skips: SkipCounter,
+}
+
+impl<M: IpcMessage> Subscriber<M> {
+    /// The newest message since the last call, if any; older ones are skipped
+    /// and counted.
+    pub fn latest(&mut self) -> Result<Option<M>, TransportError> {
+        let mut newest: Option<M> = None;
+        while let Some(sample) = self
+            .port
+            .receive()
+            .map_err(|e| ipc_err("receive", &self.topic, e))?
+        {
+            newest = Some(*sample.payload());
+        }
+        if let Some(m) = &newest {
+            self.skips.observe(m.stamp().frame_seq);
+        }
+        Ok(newest)
+    }
+
+    /// The listener to attach to a WaitSet (see [`wait_loop`]).
+    pub fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+
+    pub fn skips(&self) -> SkipCounter {
+        self.skips
+    }
+
+    pub fn topic(&self) -> &str {
+        &self.topic
+    }
+}
+
+/// Publishes header + slice messages (frames, maps) of one topic.
+pub struct SlicePublisher<H: IpcHeader, E: IpcElem> {
+    port: IoxPublisher<ipc::Service, [E], H>,
+    notifier: Notifier<ipc::Service>,
+    topic: String,
+    max_len: usize,
+    sent: u64,
+}
+
+impl<H: IpcHeader, E: IpcElem> SlicePublisher<H, E> {
+    fn check_len(&self, len: usize) -> Result<(), TransportError> {
+        if len > self.max_len {
+            return Err(TransportError::TooLarge {
+                topic: self.topic.clone(),
+                detail: format!(
+                    "{len} elements, the publisher was created for at most {}",
+                    self.max_len
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    /// Loans `len` zeroed elements in shared memory, lets `fill` write them in
+    /// place, then sends. The only copy of the data is the one `fill` makes.
+    pub fn publish_with(
+        &mut self,
+        header: H,
+        len: usize,
+        fill: impl FnOnce(&mut [E]),
+    ) -> Result<(), TransportError> {
+        self.check_len(len)?;
+        let sample = self
+            .port
+            .loan_slice_uninit(len)
+            .map_err(|e| ipc_err("loan", &self.topic, e))?;
+        let mut sample = sample.write_from_fn(|_| E::zeroed());
+        *sample.user_header_mut() = header;
+        fill(sample.payload_mut());
+        sample
+            .send()
+            .map_err(|e| ipc_err("send", &self.topic, e))?;
+        self.sent += 1;
+        let _ = self.notifier.notify();
+        Ok(())
+    }
+
+    /// Copies `data` into shared memory and sends it.
+    pub fn publish_copy(&mut self, header: H, data: &[E]) -> Result<(), TransportError> {
+        self.check_len(data.len())?;
+        let sample = self
+            .port
+            .loan_slice_uninit(data.len())
+            .map_err(|e| ipc_err("loan", &self.topic, e))?;
+        let mut sample = sample.write_from_slice(data);
+        *sample.user_header_mut() = header;
+        sample
+            .send()
+            .map_err(|e| ipc_err("send", &self.topic, e))?;
+        self.sent += 1;
+        let _ = self.notifier.notify();
+        Ok(())
+    }
+
+    pub fn max_len(&self) -> usize {
+        self.max_len
+    }
+
+    pub fn sent(&self) -> u64 {
+        self.sent
+    }
+
+    pub fn topic(&self) -> &str {
+        &self.topic
+    }
+}
+
+/// A received header + slice message, read in place from shared memory.
+pub struct SliceSample<H: IpcHeader, E: IpcElem>(Sample<ipc::Service, [E], H>);
+
+impl<H: IpcHeader, E: IpcElem> SliceSample<H, E> {
+    pub fn header(&self) -> &H {
+        self.0.user_header()
+    }
+
+    pub fn data(&self) -> &[E] {
+        self.0.payload()
+    }
+}
+
+/// Receives the newest header + slice message of one topic.
+pub struct SliceSubscriber<H: IpcHeader, E: IpcElem> {
+    port: IoxSubscriber<ipc::Service, [E], H>,
+    listener: Listener<ipc::Service>,
+    topic: String,
+    skips: SkipCounter,
+}
+
+impl<H: IpcHeader, E: IpcElem> SliceSubscriber<H, E> {
+    /// The newest message since the last call, if any, without copying it.
+    pub fn latest(&mut self) -> Result<Option<SliceSample<H, E>>, TransportError> {
+        let mut newest = None;
+        while let Some(sample) = self
+            .port
+            .receive()
+            .map_err(|e| ipc_err("receive", &self.topic, e))?
+        {
+            newest = Some(sample);
+        }
+        if let Some(s) = &newest {
+            self.skips.observe(s.user_header().stamp().frame_seq);
+        }
+        Ok(newest.map(SliceSample))
+    }
+
+    pub fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+
+    pub fn skips(&self) -> SkipCounter {
+        self.skips
+    }
+
+    pub fn topic(&self) -> &str {
+        &self.topic
+    }
+}
+
+/// Why [`wait_loop`] woke the stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Wake {
+    /// Input `i` (index into the listeners given) was notified.
+    Input(usize),
+    /// The tick interval passed.
+    Tick,
+}
+
+/// Why [`wait_loop`] returned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LoopExit {
+    /// SIGTERM or SIGINT: the stage should shut down cleanly.
+    Terminated,
+    /// The callback asked to stop.
+    Stopped,
+}
+
+/// Sleeps on a WaitSet until an input is notified or `tick` passes, and calls
+/// `on_wake` for each reason. Returns on SIGTERM/SIGINT or when `on_wake`
+/// breaks. Each input's listener is drained before `on_wake` runs, so the
+/// WaitSet never spins.
+pub fn wait_loop(
+    inputs: &[&Listener<ipc::Service>],
+    tick: Option<Duration>,
+    mut on_wake: impl FnMut(Wake) -> ControlFlow<()>,
+) -> Result<LoopExit, TransportError> {
+    let waitset = WaitSetBuilder::new()
+        .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
+        .create::<ipc::Service>()
+        .map_err(|e| ipc_err("waitset", "-", e))?;
+    let mut guards = Vec::with_capacity(inputs.len());
+    for listener in inputs {
+        guards.push(
+            waitset
+                .attach_notification(*listener)
+                .map_err(|e| ipc_err("waitset attach", "-", e))?,
+        );
+    }
+    let tick_guard = match tick {
+        Some(t) => Some(
+            waitset
+                .attach_interval(t)
+                .map_err(|e| ipc_err("waitset interval", "-", e))?,
+        ),
+        None => None,
+    };
+    let mut stopped = false;
+    let result = waitset
+        .wait_and_process(|id| {
+            let mut wake = None;
+            for (i, (listener, guard)) in inputs.iter().zip(&guards).enumerate() {
+                if id.has_event_from(guard) {
+                    let _ = listener.try_wait(|_| {});
+                    wake = Some(Wake::Input(i));
+                }
+            }
+            if let Some(g) = &tick_guard {
+                if id.has_event_from(g) {
+                    wake = Some(Wake::Tick);
+                }
+            }
+            match wake.map(&mut on_wake) {
+                Some(ControlFlow::Break(())) => {
+                    stopped = true;
+                    CallbackProgression::Stop
+                }
+                _ => CallbackProgression::Continue,
+            }
+        })
+        .map_err(|e| ipc_err("waitset wait", "-", e))?;
+    Ok(match result {
+        WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => LoopExit::Terminated,
+        _ if stopped => LoopExit::Stopped,
+        _ => LoopExit::Stopped,
+    })
+}
