@@ -30,7 +30,13 @@ use std::path::Path;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Lens {
     /// Brown-Conrady "plumb_bob": radial k1 k2 k3, tangential p1 p2.
-    PlumbBob { k1: f64, k2: f64, p1: f64, p2: f64, k3: f64 },
+    PlumbBob {
+        k1: f64,
+        k2: f64,
+        p1: f64,
+        p2: f64,
+        k3: f64,
+    },
     /// Equidistant fisheye: theta_d = theta (1 + k1 t^2 + k2 t^4 + k3 t^6 + k4 t^8).
     KannalaBrandt { k1: f64, k2: f64, k3: f64, k4: f64 },
 }
@@ -146,7 +152,8 @@ impl CameraModel {
                 for _ in 0..20 {
                     let t2 = t * t;
                     let f = t * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))) - theta_d;
-                    let df = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)));
+                    let df =
+                        1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)));
                     if df.abs() < 1e-12 {
                         break;
                     }
@@ -447,7 +454,12 @@ impl CameraConfig {
             }
         };
         model.validate()?;
-        if self.xyz_m.iter().chain(&self.rpy_deg).any(|v| !v.is_finite()) {
+        if self
+            .xyz_m
+            .iter()
+            .chain(&self.rpy_deg)
+            .any(|v| !v.is_finite())
+        {
             return Err(CameraError::Invalid {
                 key: "xyz_m/rpy_deg",
                 value: format!("{:?} {:?}", self.xyz_m, self.rpy_deg),
@@ -569,19 +581,34 @@ mod tests {
 
     #[test]
     fn pinhole_centre_and_edge_bearings() {
-        let cam = Camera::new(0, "front", orfd(), Mount::from_xyz_rpy_deg([0.0; 3], [0.0; 3]));
+        let cam = Camera::new(
+            0,
+            "front",
+            orfd(),
+            Mount::from_xyz_rpy_deg([0.0; 3], [0.0; 3]),
+        );
         assert!(cam.pixel_bearing_rad(625.01, 376.48).unwrap().abs() < 1e-12);
         // Pixel 0 is left of centre: positive (counter-clockwise) bearing of atan(cx/fx).
         let b = cam.pixel_bearing_rad(0.0, 376.48).unwrap();
         assert!((b - (625.01f64 / 1487.75).atan()).abs() < 1e-12, "{b}");
         // A camera yawed 90 degrees left sees its centre at +pi/2.
-        let left = Camera::new(1, "left", orfd(), Mount::from_xyz_rpy_deg([0.0; 3], [0.0, 0.0, 90.0]));
+        let left = Camera::new(
+            1,
+            "left",
+            orfd(),
+            Mount::from_xyz_rpy_deg([0.0; 3], [0.0, 0.0, 90.0]),
+        );
         assert!((left.pixel_bearing_rad(625.01, 376.48).unwrap() - FRAC_PI_2).abs() < 1e-12);
     }
 
     #[test]
     fn pitch_down_points_centre_ray_at_the_ground() {
-        let cam = Camera::new(0, "f", orfd(), Mount::from_xyz_rpy_deg([0.0, 0.0, 1.0], [0.0, 30.0, 0.0]));
+        let cam = Camera::new(
+            0,
+            "f",
+            orfd(),
+            Mount::from_xyz_rpy_deg([0.0, 0.0, 1.0], [0.0, 30.0, 0.0]),
+        );
         let r = cam.pixel_ray_robot(625.01, 376.48);
         assert!((r.z - (-0.5)).abs() < 1e-12, "{r}");
         assert!(r.x > 0.0);
@@ -600,7 +627,10 @@ mod tests {
         for (u, v) in [(10.0, 20.0), (640.0, 360.0), (1270.0, 700.0)] {
             let ray = m.unproject(u, v);
             let px = m.project(&ray).unwrap();
-            assert!((px.x - u).abs() < 1e-6 && (px.y - v).abs() < 1e-6, "{u},{v} -> {px}");
+            assert!(
+                (px.x - u).abs() < 1e-6 && (px.y - v).abs() < 1e-6,
+                "{u},{v} -> {px}"
+            );
         }
     }
 
@@ -630,10 +660,19 @@ mod tests {
         let back = m.project(&ray).unwrap();
         assert!(back.x.abs() < 1e-9);
         // Mounted facing backwards, that pixel looks 95 degrees to the robot's right... of backwards.
-        let cam = Camera::new(0, "rear", m, Mount::from_xyz_rpy_deg([0.0; 3], [0.0, 0.0, 180.0]));
+        let cam = Camera::new(
+            0,
+            "rear",
+            m,
+            Mount::from_xyz_rpy_deg([0.0; 3], [0.0, 0.0, 180.0]),
+        );
         let b = cam.pixel_bearing_rad(0.0, 320.0).unwrap();
         // Optical left of a rear camera is the robot's right: -(180 - 95) degrees.
-        assert!((b - (-(PI - 95f64.to_radians()))).abs() < 1e-9, "{}", b.to_degrees());
+        assert!(
+            (b - (-(PI - 95f64.to_radians()))).abs() < 1e-9,
+            "{}",
+            b.to_degrees()
+        );
     }
 
     #[test]
@@ -645,10 +684,17 @@ mod tests {
             k3: 0.0,
             k4: 0.0,
         };
-        let cam = Camera::new(3, "rear", m, Mount::from_xyz_rpy_deg([-0.4, 0.1, 0.9], [0.0, 10.0, 180.0]));
+        let cam = Camera::new(
+            3,
+            "rear",
+            m,
+            Mount::from_xyz_rpy_deg([-0.4, 0.1, 0.9], [0.0, 10.0, 180.0]),
+        );
         let back = Camera::from_info(&cam.to_info(Stamp::default())).unwrap();
         assert_eq!(back.model, cam.model);
-        assert!((back.pixel_ray_robot(100.0, 200.0) - cam.pixel_ray_robot(100.0, 200.0)).norm() < 1e-12);
+        assert!(
+            (back.pixel_ray_robot(100.0, 200.0) - cam.pixel_ray_robot(100.0, 200.0)).norm() < 1e-12
+        );
     }
 
     #[test]
@@ -663,7 +709,9 @@ mod tests {
         assert_eq!(m.fy, 1471.06);
         assert!(matches!(m.lens, Lens::PlumbBob { k1, .. } if k1 == -0.1));
         let bad = yaml.replace("data: [1487.75, 0, 625.01,", "data: [625.01,");
-        assert!(parse_ros_camera_info(&bad).unwrap_err().contains("expected 9"));
+        assert!(parse_ros_camera_info(&bad)
+            .unwrap_err()
+            .contains("expected 9"));
     }
 
     #[test]
@@ -673,9 +721,17 @@ mod tests {
         )
         .unwrap();
         let e = cfg.build(0, Path::new(".")).unwrap_err();
-        assert_eq!(e.to_string(), "camera fx = -1: expected a positive focal length in pixels");
-        let cfg: CameraConfig = toml::from_str("name = \"front\"\nmodel = \"orthographic\"").unwrap();
-        assert!(cfg.build(0, Path::new(".")).unwrap_err().to_string().contains("model = orthographic"));
+        assert_eq!(
+            e.to_string(),
+            "camera fx = -1: expected a positive focal length in pixels"
+        );
+        let cfg: CameraConfig =
+            toml::from_str("name = \"front\"\nmodel = \"orthographic\"").unwrap();
+        assert!(cfg
+            .build(0, Path::new("."))
+            .unwrap_err()
+            .to_string()
+            .contains("model = orthographic"));
     }
 
     #[test]

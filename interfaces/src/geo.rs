@@ -32,7 +32,11 @@ pub struct GeoRangeError {
 }
 
 impl GeoPoint {
-    pub fn new(latitude_deg: f64, longitude_deg: f64, altitude_m: f64) -> Result<Self, GeoRangeError> {
+    pub fn new(
+        latitude_deg: f64,
+        longitude_deg: f64,
+        altitude_m: f64,
+    ) -> Result<Self, GeoRangeError> {
         let check = |field, value: f64, lim: f64| {
             if value.is_finite() && value.abs() <= lim {
                 Ok(())
@@ -55,7 +59,10 @@ impl GeoPoint {
     }
 
     fn to_ecef(self) -> Vector3<f64> {
-        let (lat, lon) = (self.latitude_deg.to_radians(), self.longitude_deg.to_radians());
+        let (lat, lon) = (
+            self.latitude_deg.to_radians(),
+            self.longitude_deg.to_radians(),
+        );
         let n = WGS84_A / (1.0 - WGS84_E2 * lat.sin().powi(2)).sqrt();
         Vector3::new(
             (n + self.altitude_m) * lat.cos() * lon.cos(),
@@ -99,9 +106,15 @@ impl LocalEnuFrame {
         );
         let (sl, cl, so, co) = (lat.sin(), lat.cos(), lon.sin(), lon.cos());
         let enu_from_ecef = Matrix3::new(
-            -so, co, 0.0, //
-            -sl * co, -sl * so, cl, //
-            cl * co, cl * so, sl,
+            -so,
+            co,
+            0.0, //
+            -sl * co,
+            -sl * so,
+            cl, //
+            cl * co,
+            cl * so,
+            sl,
         );
         Self {
             anchor,
@@ -173,7 +186,10 @@ mod tests {
     #[test]
     fn bad_coordinates_are_named() {
         let e = GeoPoint::new(91.0, 0.0, 0.0).unwrap_err();
-        assert_eq!(e.to_string(), "latitude_deg = 91 is outside [-90, 90] degrees");
+        assert_eq!(
+            e.to_string(),
+            "latitude_deg = 91 is outside [-90, 90] degrees"
+        );
         assert!(GeoPoint::new(0.0, f64::NAN, 0.0).is_err());
     }
 

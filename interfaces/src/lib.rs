@@ -21,7 +21,7 @@
 //! frames.publish_with(header, 640 * 360 * 3, |pixels| pixels.fill(128))?;
 //!
 //! // Consumer side: read the newest frame in place.
-//! let mut sub = bus.slice_subscriber(&topics::camera_image("front"))?;
+//! let sub = bus.slice_subscriber(&topics::camera_image("front"))?;
 //! if let Some(frame) = sub.latest()? {
 //!     frame.header().validate(frame.data().len())?;
 //! }

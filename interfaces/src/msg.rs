@@ -160,7 +160,9 @@ pub struct ImageHeader {
 pub enum ImageLayoutError {
     #[error("unknown pixel encoding {0}")]
     UnknownEncoding(u32),
-    #[error("stride {stride} bytes is shorter than a {width}-pixel row of {encoding} ({row} bytes)")]
+    #[error(
+        "stride {stride} bytes is shorter than a {width}-pixel row of {encoding} ({row} bytes)"
+    )]
     StrideTooShort {
         stride: u32,
         width: u32,
@@ -179,7 +181,13 @@ pub enum ImageLayoutError {
 
 impl ImageHeader {
     /// A tightly packed raw image header.
-    pub fn packed(stamp: Stamp, camera_id: u32, width: u32, height: u32, encoding: PixelEncoding) -> Self {
+    pub fn packed(
+        stamp: Stamp,
+        camera_id: u32,
+        width: u32,
+        height: u32,
+        encoding: PixelEncoding,
+    ) -> Self {
         let bpp = encoding.bytes_per_pixel().unwrap_or(0) as u32;
         Self {
             stamp,
@@ -286,7 +294,9 @@ pub struct AngularBins {
 }
 
 /// One FITAM polar bin (heading x range) in the robot frame.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable, ZeroCopySend, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable, ZeroCopySend, Serialize, Deserialize,
+)]
 #[repr(C)]
 #[type_name("farsight::PolarCell")]
 pub struct PolarCell {
@@ -318,7 +328,9 @@ pub struct PolarBinsHeader {
 }
 
 /// One cell of a costmap.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable, ZeroCopySend, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable, ZeroCopySend, Serialize, Deserialize,
+)]
 #[repr(C)]
 #[type_name("farsight::CostCell")]
 pub struct CostCell {
@@ -601,7 +613,10 @@ mod tests {
         );
         let mut bad = h;
         bad.stride_bytes = 11;
-        assert!(matches!(bad.validate(33), Err(ImageLayoutError::StrideTooShort { .. })));
+        assert!(matches!(
+            bad.validate(33),
+            Err(ImageLayoutError::StrideTooShort { .. })
+        ));
         bad.encoding = PixelEncoding(77);
         assert_eq!(bad.validate(0), Err(ImageLayoutError::UnknownEncoding(77)));
     }
@@ -610,7 +625,10 @@ mod tests {
     fn codes_print_names_and_flag_unknown_values() {
         assert_eq!(format!("{:?}", PixelEncoding::YUYV), "yuyv");
         assert_eq!(format!("{:?}", PixelEncoding(1234)), "unknown(1234)");
-        assert_eq!(CommandReason::from_name("estop"), Some(CommandReason::ESTOP));
+        assert_eq!(
+            CommandReason::from_name("estop"),
+            Some(CommandReason::ESTOP)
+        );
         assert!(!HealthState(99).is_known());
     }
 

@@ -85,7 +85,9 @@ pub fn parse_zenoh_key(key: &str) -> Option<(&str, &str)> {
 
 /// A topic or robot name that cannot be used as an iceoryx2 service or zenoh key.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("invalid name {name:?}: {why} (use lowercase words, digits, '_' and '-', separated by '/')")]
+#[error(
+    "invalid name {name:?}: {why} (use lowercase words, digits, '_' and '-', separated by '/')"
+)]
 pub struct TopicNameError {
     pub name: String,
     pub why: &'static str,

@@ -1,1 +1,228 @@
+//! Helpers for the end-to-end tests: find the built binaries, run them as real
+//! processes in an isolated iceoryx2 namespace, watch their output, and kill
+//! them (SIGKILL, reaped) when a test ends or wants a crash.
 
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::{channel, Receiver, RecvTimeoutError};
+use std::time::{Duration, Instant};
+
+/// Path of a workspace binary, built by `cargo build --release --workspace`
+/// (which `cargo xtask test` runs first).
+pub fn bin(name: &str) -> PathBuf {
+    // current_exe = target/<profile>/deps/<test>-<hash>
+    let exe = std::env::current_exe().expect("current_exe");
+    let dir = exe
+        .parent()
+        .and_then(|d| d.parent())
+        .expect("test binary lives in target/<profile>/deps");
+    let path = dir.join(name);
+    assert!(
+        path.exists(),
+        "{} not found: build the workspace binaries first (cargo build --release --workspace, or cargo xtask test)",
+        path.display()
+    );
+    path
+}
+
+/// An iceoryx2 namespace of one test: its own resource prefix and root
+/// directory, so tests run in parallel without seeing each other. Dropping it
+/// removes what the test's processes left in `/dev/shm` and the root directory;
+/// declare it before the test's [`Proc`]s so they are killed first.
+pub struct Namespace {
+    pub prefix: String,
+    pub root: PathBuf,
+}
+
+impl Namespace {
+    pub fn new(test: &str) -> Self {
+        let short: String = test
+            .chars()
+            .filter(|c| c.is_ascii_alphanumeric())
+            .take(12)
+            .collect();
+        let prefix = format!(
+            "t{}_{}_{}_",
+            std::process::id() % 100_000,
+            short,
+            nanos() % 1_000_000
+        );
+        let root = std::env::temp_dir().join(format!("farsight-{prefix}"));
+        std::fs::create_dir_all(&root).expect("namespace root");
+        Self { prefix, root }
+    }
+
+    /// Environment that puts a process into this namespace.
+    pub fn env(&self) -> [(&'static str, String); 2] {
+        [
+            ("FARSIGHT_IPC_PREFIX", self.prefix.clone()),
+            ("FARSIGHT_IPC_ROOT", format!("{}/", self.root.display())),
+        ]
+    }
+
+    /// Applies this namespace to the current (test) process.
+    pub fn enter(&self) {
+        for (k, v) in self.env() {
+            std::env::set_var(k, v);
+        }
+    }
+}
+
+impl Drop for Namespace {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.root);
+        if let Ok(entries) = std::fs::read_dir("/dev/shm") {
+            for e in entries.flatten() {
+                if e.file_name().to_string_lossy().starts_with(&self.prefix) {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
+    }
+}
+
+fn nanos() -> u128 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0)
+}
+
+/// A free TCP port on loopback.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("free port")
+}
+
+/// A running child process whose stdout lines arrive on a channel, stamped
+/// with the time they were read. Killed and reaped on drop.
+pub struct Proc {
+    pub name: String,
+    child: Option<Child>,
+    lines: Receiver<(Instant, String)>,
+    stderr: Receiver<String>,
+}
+
+impl Proc {
+    /// Starts `bin(name)` with `args` in the iceoryx2 namespace `ns`.
+    pub fn start(name: &str, args: &[&str], ns: &Namespace) -> Self {
+        Self::start_env(name, args, ns, &[])
+    }
+
+    pub fn start_env(name: &str, args: &[&str], ns: &Namespace, env: &[(&str, &str)]) -> Self {
+        let mut cmd = Command::new(bin(name));
+        cmd.args(args)
+            .envs(ns.env())
+            .env(
+                "RUST_LOG",
+                std::env::var("RUST_LOG").unwrap_or_else(|_| "info".into()),
+            )
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        for (k, v) in env {
+            cmd.env(k, v);
+        }
+        let mut child = cmd
+            .spawn()
+            .unwrap_or_else(|e| panic!("starting {name}: {e}"));
+        let (tx, lines) = channel();
+        let out = child.stdout.take().expect("stdout");
+        std::thread::spawn(move || {
+            for line in BufReader::new(out).lines().map_while(Result::ok) {
+                if tx.send((Instant::now(), line)).is_err() {
+                    break;
+                }
+            }
+        });
+        let (etx, stderr) = channel();
+        let err = child.stderr.take().expect("stderr");
+        std::thread::spawn(move || {
+            for line in BufReader::new(err).lines().map_while(Result::ok) {
+                if etx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        Self {
+            name: name.to_string(),
+            child: Some(child),
+            lines,
+            stderr,
+        }
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.child.as_ref().map(|c| c.id()).unwrap_or(0)
+    }
+
+    /// The next stdout line matching `pred`, waiting at most `timeout`.
+    pub fn wait_line(
+        &self,
+        timeout: Duration,
+        pred: impl Fn(&str) -> bool,
+    ) -> Option<(Instant, String)> {
+        let end = Instant::now() + timeout;
+        loop {
+            let left = end.saturating_duration_since(Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok((t, l)) if pred(&l) => return Some((t, l)),
+                Ok(_) => continue,
+                Err(RecvTimeoutError::Timeout) | Err(RecvTimeoutError::Disconnected) => {
+                    return None
+                }
+            }
+        }
+    }
+
+    /// Everything written to stderr so far (for failure messages).
+    pub fn stderr_so_far(&self) -> String {
+        self.stderr.try_iter().collect::<Vec<_>>().join("\n")
+    }
+
+    /// Waits for the process to exit; returns its exit code.
+    pub fn wait_exit(&mut self, timeout: Duration) -> Option<i32> {
+        let end = Instant::now() + timeout;
+        let child = self.child.as_mut()?;
+        loop {
+            if let Ok(Some(status)) = child.try_wait() {
+                self.child = None;
+                return Some(status.code().unwrap_or(-1));
+            }
+            if Instant::now() > end {
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// SIGKILL and reap: a crash, as far as the rest of the graph can tell.
+    pub fn kill(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+
+    /// SIGTERM, then wait for a clean exit; returns the exit code.
+    pub fn terminate(&mut self, timeout: Duration) -> Option<i32> {
+        let pid = self.pid();
+        if pid == 0 {
+            return None;
+        }
+        let _ = Command::new("kill")
+            .arg("-TERM")
+            .arg(pid.to_string())
+            .status();
+        self.wait_exit(timeout)
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}

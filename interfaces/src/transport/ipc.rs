@@ -18,7 +18,7 @@
 //!
 //! let bus = Bus::open("example")?;
 //! let mut publisher = bus.publisher(&topics::velocity_command())?;
-//! let mut subscriber = bus.subscriber(&topics::velocity_command())?;
+//! let subscriber = bus.subscriber(&topics::velocity_command())?;
 //! publisher.publish(&VelocityCommand::stop(Stamp::new(1, 0), CommandReason::ESTOP))?;
 //! if let Some(cmd) = subscriber.latest()? {
 //!     assert_eq!(cmd.linear_mps, 0.0);
@@ -28,6 +28,7 @@
 
 use super::{SkipCounter, Stamped, TransportError};
 use crate::topics::{Slice, Topic};
+use core::cell::Cell;
 use core::fmt::Debug;
 use core::ops::ControlFlow;
 use core::time::Duration;
@@ -121,6 +122,8 @@ impl Bus {
 
     /// Opens the bus, removing what dead processes left behind first.
     pub fn open_with(node_name: &str, settings: &IpcSettings) -> Result<Self, TransportError> {
+        // iceoryx2 logs to the console at info level; keep that for IOX2_LOG_LEVEL users.
+        set_log_level_from_env_or(LogLevel::Warn);
         let config = settings.config()?;
         let name = NodeName::new(node_name).map_err(|e| ipc_err("node name", node_name, e))?;
         let node = NodeBuilder::new()
@@ -167,7 +170,12 @@ impl Bus {
             Ok(v) => Ok(v),
             Err(first) => {
                 let removed = self.cleanup_dead_nodes();
-                tracing::debug!(topic, ?first, removed, "retrying {what} after dead-node clean-up");
+                tracing::debug!(
+                    topic,
+                    ?first,
+                    removed,
+                    "retrying {what} after dead-node clean-up"
+                );
                 create().map_err(|e| ipc_err(what, topic, e))
             }
         }
@@ -196,7 +204,10 @@ impl Bus {
     }
 
     /// A publisher of fixed-size messages.
-    pub fn publisher<M: IpcMessage>(&self, topic: &Topic<M>) -> Result<Publisher<M>, TransportError> {
+    pub fn publisher<M: IpcMessage>(
+        &self,
+        topic: &Topic<M>,
+    ) -> Result<Publisher<M>, TransportError> {
         let name = Self::service_name(topic.name())?;
         let service = self.with_cleanup_retry("publish-subscribe service", topic.name(), || {
             self.node
@@ -256,7 +267,7 @@ impl Bus {
             port,
             listener,
             topic: topic.name().to_string(),
-            skips: SkipCounter::default(),
+            skips: Cell::new(SkipCounter::default()),
         })
     }
 
@@ -315,7 +326,7 @@ impl Bus {
             port,
             listener,
             topic: topic.name().to_string(),
-            skips: SkipCounter::default(),
+            skips: Cell::new(SkipCounter::default()),
         })
     }
 
@@ -390,13 +401,13 @@ pub struct Subscriber<M: IpcMessage> {
     port: IoxSubscriber<ipc::Service, M, ()>,
     listener: Listener<ipc::Service>,
     topic: String,
-    skips: SkipCounter,
+    skips: Cell<SkipCounter>,
 }
 
 impl<M: IpcMessage> Subscriber<M> {
     /// The newest message since the last call, if any; older ones are skipped
     /// and counted.
-    pub fn latest(&mut self) -> Result<Option<M>, TransportError> {
+    pub fn latest(&self) -> Result<Option<M>, TransportError> {
         let mut newest: Option<M> = None;
         while let Some(sample) = self
             .port
@@ -406,7 +417,7 @@ impl<M: IpcMessage> Subscriber<M> {
             newest = Some(*sample.payload());
         }
         if let Some(m) = &newest {
-            self.skips.observe(m.stamp().frame_seq);
+            self.observe(m.stamp().frame_seq);
         }
         Ok(newest)
     }
@@ -417,7 +428,13 @@ impl<M: IpcMessage> Subscriber<M> {
     }
 
     pub fn skips(&self) -> SkipCounter {
-        self.skips
+        self.skips.get()
+    }
+
+    fn observe(&self, seq: u64) {
+        let mut s = self.skips.get();
+        s.observe(seq);
+        self.skips.set(s);
     }
 
     pub fn topic(&self) -> &str {
@@ -464,9 +481,7 @@ impl<H: IpcHeader, E: IpcElem> SlicePublisher<H, E> {
         let mut sample = sample.write_from_fn(|_| E::zeroed());
         *sample.user_header_mut() = header;
         fill(sample.payload_mut());
-        sample
-            .send()
-            .map_err(|e| ipc_err("send", &self.topic, e))?;
+        sample.send().map_err(|e| ipc_err("send", &self.topic, e))?;
         self.sent += 1;
         let _ = self.notifier.notify();
         Ok(())
@@ -481,9 +496,7 @@ impl<H: IpcHeader, E: IpcElem> SlicePublisher<H, E> {
             .map_err(|e| ipc_err("loan", &self.topic, e))?;
         let mut sample = sample.write_from_slice(data);
         *sample.user_header_mut() = header;
-        sample
-            .send()
-            .map_err(|e| ipc_err("send", &self.topic, e))?;
+        sample.send().map_err(|e| ipc_err("send", &self.topic, e))?;
         self.sent += 1;
         let _ = self.notifier.notify();
         Ok(())
@@ -520,12 +533,12 @@ pub struct SliceSubscriber<H: IpcHeader, E: IpcElem> {
     port: IoxSubscriber<ipc::Service, [E], H>,
     listener: Listener<ipc::Service>,
     topic: String,
-    skips: SkipCounter,
+    skips: Cell<SkipCounter>,
 }
 
 impl<H: IpcHeader, E: IpcElem> SliceSubscriber<H, E> {
     /// The newest message since the last call, if any, without copying it.
-    pub fn latest(&mut self) -> Result<Option<SliceSample<H, E>>, TransportError> {
+    pub fn latest(&self) -> Result<Option<SliceSample<H, E>>, TransportError> {
         let mut newest = None;
         while let Some(sample) = self
             .port
@@ -535,7 +548,7 @@ impl<H: IpcHeader, E: IpcElem> SliceSubscriber<H, E> {
             newest = Some(sample);
         }
         if let Some(s) = &newest {
-            self.skips.observe(s.user_header().stamp().frame_seq);
+            self.observe(s.user_header().stamp().frame_seq);
         }
         Ok(newest.map(SliceSample))
     }
@@ -545,7 +558,13 @@ impl<H: IpcHeader, E: IpcElem> SliceSubscriber<H, E> {
     }
 
     pub fn skips(&self) -> SkipCounter {
-        self.skips
+        self.skips.get()
+    }
+
+    fn observe(&self, seq: u64) {
+        let mut s = self.skips.get();
+        s.observe(seq);
+        self.skips.set(s);
     }
 
     pub fn topic(&self) -> &str {

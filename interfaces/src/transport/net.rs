@@ -117,7 +117,11 @@ impl NetBus {
     }
 
     /// A publisher of raw wire bytes on `topic` (used by the bridge).
-    pub fn bytes_publisher(&self, topic: &str, drop_when_congested: bool) -> Result<RawPublisher, TransportError> {
+    pub fn bytes_publisher(
+        &self,
+        topic: &str,
+        drop_when_congested: bool,
+    ) -> Result<RawPublisher, TransportError> {
         let cc = if drop_when_congested {
             CongestionControl::Drop
         } else {
@@ -139,7 +143,10 @@ impl NetBus {
     }
 
     /// A publisher of fixed-size messages (congestion control `Block`).
-    pub fn publisher<M: Serialize>(&self, topic: &Topic<M>) -> Result<Publisher<M>, TransportError> {
+    pub fn publisher<M: Serialize>(
+        &self,
+        topic: &Topic<M>,
+    ) -> Result<Publisher<M>, TransportError> {
         Ok(Publisher {
             raw: self.raw_publisher(topic.name(), CongestionControl::Block)?,
             _m: PhantomData,
@@ -333,7 +340,10 @@ impl<H: DeserializeOwned + Stamped, E: Pod> SliceSubscriber<H, E> {
         }
     }
 
-    pub fn recv_timeout(&mut self, timeout: Duration) -> Result<Option<(H, Vec<E>)>, TransportError> {
+    pub fn recv_timeout(
+        &mut self,
+        timeout: Duration,
+    ) -> Result<Option<(H, Vec<E>)>, TransportError> {
         match self.raw.recv_timeout(timeout)? {
             Some(b) => self.decode(b).map(Some),
             None => Ok(None),

@@ -1,1 +1,400 @@
+//! # farsight-stage
+//!
+//! The skeleton every farsight stage binary runs on, so each `main` is a thin
+//! loop around its library code:
+//!
+//! - [`StageArgs`]: `--config <file.toml>`, `--log-format text|json`;
+//! - [`load_config`]: TOML into a typed config, then [`Validate`]; every error
+//!   names the file, key, value and what was expected;
+//! - [`init_tracing`]: `RUST_LOG`-style filters, JSON lines for journald;
+//! - [`Health`]: the stage's [`StageHealth`] message, published at a fixed rate;
+//! - shutdown: [`farsight_interfaces::transport::ipc::wait_loop`] returns
+//!   `Terminated` on SIGTERM/SIGINT, and the stage publishes a last
+//!   `stopping` health message before it exits.
+//!
+//! ```no_run
+//! use farsight_stage::{load_config, StageArgs, Validate, ConfigError, Health};
+//! use farsight_interfaces::{clock::{Clock, WallClock}, transport::ipc::{self, Bus, Wake}};
+//! use serde::Deserialize;
+//! use std::ops::ControlFlow;
+//!
+//! #[derive(Deserialize, Default)]
+//! #[serde(deny_unknown_fields, default)]
+//! struct Config { rate_hz: f64 }
+//! impl Validate for Config {
+//!     fn validate(&self) -> Result<(), ConfigError> {
+//!         ConfigError::check(self.rate_hz > 0.0, "rate_hz", self.rate_hz, "a positive rate")
+//!     }
+//! }
+//!
+//! let args = StageArgs::parse("example")?;
+//! farsight_stage::init_tracing(args.log_format);
+//! let config: Config = load_config(args.config.as_deref())?;
+//! let bus = Bus::open("example")?;
+//! let mut health = Health::new(&bus, "example", 1.0)?;
+//! ipc::wait_loop(&[], Some(std::time::Duration::from_millis(100)), |_wake| {
+//!     health.tick(WallClock.now_ns());
+//!     ControlFlow::Continue(())
+//! })?;
+//! health.stopping(WallClock.now_ns());
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
+use farsight_interfaces::fixed::FixedStr;
+use farsight_interfaces::msg::{HealthState, StageHealth, Stamp};
+use farsight_interfaces::topics;
+use farsight_interfaces::transport::ipc::{Bus, Publisher};
+use farsight_interfaces::transport::TransportError;
+use serde::de::DeserializeOwned;
+use std::fmt::Display;
+use std::path::{Path, PathBuf};
+
+/// A config that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config {path}: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("config {path}: {detail}")]
+    Parse { path: String, detail: String },
+    #[error("config key `{key}` = {value}: expected {expected}")]
+    Invalid {
+        key: String,
+        value: String,
+        expected: String,
+    },
+}
+
+impl ConfigError {
+    pub fn invalid(
+        key: impl Into<String>,
+        value: impl Display,
+        expected: impl Into<String>,
+    ) -> Self {
+        Self::Invalid {
+            key: key.into(),
+            value: value.to_string(),
+            expected: expected.into(),
+        }
+    }
+
+    /// `Ok(())` if `ok`, else an [`ConfigError::Invalid`] naming the key and value.
+    pub fn check(ok: bool, key: &str, value: impl Display, expected: &str) -> Result<(), Self> {
+        if ok {
+            Ok(())
+        } else {
+            Err(Self::invalid(key, value, expected))
+        }
+    }
+}
+
+/// Checks a config's values after parsing (ranges, consistency).
+pub trait Validate {
+    fn validate(&self) -> Result<(), ConfigError> {
+        Ok(())
+    }
+}
+
+/// Parses TOML text into `T` and validates it; `origin` names the source in errors.
+pub fn parse_config<T: DeserializeOwned + Validate>(
+    text: &str,
+    origin: &str,
+) -> Result<T, ConfigError> {
+    let config: T = toml::from_str(text).map_err(|e| ConfigError::Parse {
+        path: origin.to_string(),
+        detail: e.to_string().trim_end().to_string(),
+    })?;
+    config.validate()?;
+    Ok(config)
+}
+
+/// Loads and validates a config file; with no path, the documented defaults
+/// (`T::default()`), still validated.
+pub fn load_config<T: DeserializeOwned + Validate + Default>(
+    path: Option<&Path>,
+) -> Result<T, ConfigError> {
+    match path {
+        None => {
+            let config = T::default();
+            config.validate()?;
+            Ok(config)
+        }
+        Some(p) => {
+            let text = std::fs::read_to_string(p).map_err(|source| ConfigError::Io {
+                path: p.display().to_string(),
+                source,
+            })?;
+            parse_config(&text, &p.display().to_string())
+        }
+    }
+}
+
+/// How log lines are written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum LogFormat {
+    /// Human-readable lines on stderr.
+    #[default]
+    Text,
+    /// One JSON object per line, for journald and log shippers.
+    Json,
+}
+
+/// The command line every stage accepts.
+#[derive(Debug, Clone, Default)]
+pub struct StageArgs {
+    /// `--config <file.toml>`; without it the stage runs on its documented defaults.
+    pub config: Option<PathBuf>,
+    /// `--log-format text|json` (or `FARSIGHT_LOG_FORMAT`).
+    pub log_format: LogFormat,
+}
+
+/// A command line that cannot be used.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct ArgsError(String);
+
+impl StageArgs {
+    /// Parses the process arguments; `--help` prints usage and exits.
+    pub fn parse(stage: &str) -> Result<Self, ArgsError> {
+        Self::parse_from(stage, std::env::args().skip(1))
+    }
+
+    pub fn parse_from(
+        stage: &str,
+        args: impl IntoIterator<Item = String>,
+    ) -> Result<Self, ArgsError> {
+        let mut out = StageArgs {
+            log_format: match std::env::var("FARSIGHT_LOG_FORMAT").as_deref() {
+                Ok("json") => LogFormat::Json,
+                _ => LogFormat::Text,
+            },
+            ..Default::default()
+        };
+        let mut it = args.into_iter();
+        while let Some(a) = it.next() {
+            match a.as_str() {
+                "--config" | "-c" => {
+                    let v = it
+                        .next()
+                        .ok_or_else(|| ArgsError("--config needs a file path".into()))?;
+                    out.config = Some(PathBuf::from(v));
+                }
+                "--log-format" => {
+                    out.log_format = match it.next().as_deref() {
+                        Some("text") => LogFormat::Text,
+                        Some("json") => LogFormat::Json,
+                        other => {
+                            return Err(ArgsError(format!(
+                                "--log-format {other:?}: expected text or json"
+                            )))
+                        }
+                    }
+                }
+                "--help" | "-h" => {
+                    println!(
+                        "farsight-{stage}\n\nUSAGE: farsight-{stage} [--config FILE.toml] [--log-format text|json]\n\n\
+                         Without --config the documented defaults are used.\n\
+                         Logging: RUST_LOG (e.g. info,farsight=debug). Shared memory namespace: FARSIGHT_IPC_PREFIX."
+                    );
+                    std::process::exit(0);
+                }
+                other => {
+                    return Err(ArgsError(format!(
+                        "unexpected argument {other:?} (try --help)"
+                    )))
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Directory that relative paths in the config are resolved against.
+    pub fn config_dir(&self) -> PathBuf {
+        self.config
+            .as_deref()
+            .and_then(Path::parent)
+            .map(Path::to_path_buf)
+            .unwrap_or_else(|| PathBuf::from("."))
+    }
+}
+
+/// Sets up logging once: `RUST_LOG` filter (default `info`), text or JSON.
+pub fn init_tracing(format: LogFormat) {
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr);
+    let _ = match format {
+        LogFormat::Text => builder.try_init(),
+        LogFormat::Json => builder.json().try_init(),
+    };
+}
+
+/// A stage's health report, published on `health/<stage>` at a fixed rate.
+pub struct Health {
+    publisher: Publisher<StageHealth>,
+    msg: StageHealth,
+    period_ns: u64,
+    last_sent_ns: Option<u64>,
+    seq: u64,
+}
+
+impl Health {
+    pub fn new(bus: &Bus, stage: &str, rate_hz: f64) -> Result<Self, TransportError> {
+        let publisher = bus.publisher(&topics::health(stage))?;
+        let msg = StageHealth {
+            stage: FixedStr::truncated(stage),
+            state: HealthState::STARTING,
+            pid: std::process::id(),
+            ..Default::default()
+        };
+        Ok(Self {
+            publisher,
+            msg,
+            period_ns: (1e9 / rate_hz.max(0.01)) as u64,
+            last_sent_ns: None,
+            seq: 0,
+        })
+    }
+
+    /// Sets the state; a change of state is logged and published at the next tick.
+    pub fn set(&mut self, state: HealthState, reason: &str) {
+        if self.msg.state != state || self.msg.reason.as_str() != reason {
+            if state == HealthState::OK {
+                tracing::info!(%state, "health");
+            } else {
+                tracing::warn!(%state, reason, "health");
+            }
+            self.last_sent_ns = None;
+        }
+        self.msg.state = state;
+        self.msg.reason = FixedStr::truncated(reason);
+    }
+
+    pub fn state(&self) -> HealthState {
+        self.msg.state
+    }
+
+    /// Counts an input message taken in.
+    pub fn input(&mut self) {
+        self.msg.messages_in += 1;
+    }
+
+    /// Counts an output published, derived from frame `stamp`, at `now_ns`.
+    pub fn output(&mut self, stamp: Stamp, now_ns: u64) {
+        self.msg.messages_out += 1;
+        self.msg.stamp.frame_seq = stamp.frame_seq;
+        self.msg.last_latency_ms = (stamp.age_s(now_ns) * 1e3) as f32;
+    }
+
+    /// Counts an input dropped as invalid, logging why.
+    pub fn dropped(&mut self, why: &dyn Display) {
+        self.msg.dropped += 1;
+        tracing::warn!(dropped_total = self.msg.dropped, "dropped input: {why}");
+    }
+
+    /// Records the inputs latest-value delivery skipped (a total, not a delta).
+    pub fn set_skipped(&mut self, total: u64) {
+        self.msg.skipped = total;
+    }
+
+    pub fn report(&self) -> &StageHealth {
+        &self.msg
+    }
+
+    /// Publishes if the period has passed since the last report (or the state changed).
+    pub fn tick(&mut self, now_ns: u64) {
+        let due = match self.last_sent_ns {
+            None => true,
+            Some(t) => now_ns.saturating_sub(t) >= self.period_ns,
+        };
+        if due {
+            self.send(now_ns);
+        }
+    }
+
+    fn send(&mut self, now_ns: u64) {
+        self.seq += 1;
+        self.msg.stamp.capture_time_ns = now_ns;
+        if let Err(e) = self.publisher.publish(&self.msg) {
+            tracing::warn!("health publish failed: {e}");
+        }
+        self.last_sent_ns = Some(now_ns);
+    }
+
+    /// Publishes a final `stopping` report (on SIGTERM).
+    pub fn stopping(&mut self, now_ns: u64) {
+        self.set(HealthState::STOPPING, "shutting down");
+        self.send(now_ns);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde::Deserialize;
+
+    #[derive(Debug, Deserialize, Default)]
+    #[serde(deny_unknown_fields, default)]
+    struct Cfg {
+        rate_hz: f64,
+        name: String,
+    }
+
+    impl Validate for Cfg {
+        fn validate(&self) -> Result<(), ConfigError> {
+            ConfigError::check(
+                self.rate_hz > 0.0,
+                "rate_hz",
+                self.rate_hz,
+                "a positive rate in Hz",
+            )
+        }
+    }
+
+    #[test]
+    fn config_errors_name_key_value_and_expectation() {
+        let e = parse_config::<Cfg>("rate_hz = -2.0", "a.toml").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "config key `rate_hz` = -2: expected a positive rate in Hz"
+        );
+        let e = parse_config::<Cfg>("rate_hz = \"fast\"", "a.toml").unwrap_err();
+        let s = e.to_string();
+        assert!(s.starts_with("config a.toml:"), "{s}");
+        assert!(s.contains("rate_hz") && s.contains("expected"), "{s}");
+        let e = parse_config::<Cfg>("rate_hz = 1.0\nrat_hz = 2.0", "a.toml").unwrap_err();
+        assert!(e.to_string().contains("unknown field `rat_hz`"), "{e}");
+        let ok = parse_config::<Cfg>("rate_hz = 5.0\nname = \"x\"", "a.toml").unwrap();
+        assert_eq!((ok.rate_hz, ok.name.as_str()), (5.0, "x"));
+    }
+
+    #[test]
+    fn defaults_are_validated_and_missing_files_named() {
+        assert!(
+            load_config::<Cfg>(None).is_err(),
+            "default rate 0 must be refused"
+        );
+        let e = load_config::<Cfg>(Some(Path::new("/nonexistent/x.toml"))).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("cannot read config /nonexistent/x.toml"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn args_parse() {
+        let a = StageArgs::parse_from("x", ["--config".to_string(), "/etc/f/x.toml".to_string()])
+            .unwrap();
+        assert_eq!(a.config_dir(), PathBuf::from("/etc/f"));
+        assert!(StageArgs::parse_from("x", ["--bogus".to_string()]).is_err());
+        assert!(
+            StageArgs::parse_from("x", ["--log-format".to_string(), "xml".to_string()]).is_err()
+        );
+    }
+}

@@ -1,1 +1,46 @@
-fn main() {}
+//! `farsight`: the command-line tool of the farsight stack.
+//!
+//! ```text
+//! farsight probe publish   --width 1440 --height 1080 --rate-hz 30   # test frames into shared memory
+//! farsight probe subscribe --frames 90                              # receive and check every byte
+//! farsight bench transport                                           # iceoryx2 vs zenoh vs Unix socket
+//! ```
+
+mod bench;
+mod probe;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "farsight",
+    version,
+    about = "farsight: long-range visual navigation, command-line tools"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Check the transport on this machine with test frames whose every byte is verified.
+    #[command(subcommand)]
+    Probe(probe::ProbeCommand),
+    /// Benchmarks that print a table.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+}
+
+fn main() {
+    farsight_stage::init_tracing(farsight_stage::LogFormat::Text);
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Probe(c) => probe::run(c),
+        Command::Bench(c) => bench::run(c),
+    };
+    if let Err(e) = result {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}

@@ -1,0 +1,10 @@
+//! Benchmarks that print tables.
+use anyhow::Result;
+use clap::Subcommand;
+
+#[derive(Subcommand)]
+pub enum BenchCommand {}
+
+pub fn run(cmd: BenchCommand) -> Result<()> {
+    match cmd {}
+}
