@@ -52,6 +52,9 @@ pub const MAX_NODES: usize = 32;
 /// newer one found while draining.
 const MAX_BORROWED: usize = 2;
 
+/// The event listener of a subscriber, to attach to [`wait_loop`].
+pub type InputListener = Listener<ipc::Service>;
+
 /// Where the iceoryx2 resources of this process live.
 #[derive(Debug, Clone, Default)]
 pub struct IpcSettings {

@@ -1,0 +1,586 @@
+//! # farsight-bridge
+//!
+//! The link between the vehicle's shared-memory graph and other machines:
+//! republishes chosen iceoryx2 topics on readable zenoh keys
+//! (`farsight/<robot>/<topic>`), camera streams optionally downsampled and
+//! JPEG/PNG-compressed, latest value only and at a capped rate; and imports
+//! chosen zenoh keys (pose, goal, e-stop) into iceoryx2. A laptop or a second
+//! computer talks to the robot only through it.
+//!
+//! Config (`bridge.toml`, every key optional; defaults shown):
+//!
+//! ```toml
+//! robot = "robot"              # the <robot> segment of zenoh keys
+//! health_rate_hz = 1.0
+//! import_poll_hz = 100.0       # how often zenoh imports are checked
+//!
+//! [zenoh]
+//! mode = "peer"                # "peer", "client" or "router"
+//! listen = []                  # e.g. ["tcp/0.0.0.0:7447"]
+//! connect = []                 # e.g. ["tcp/192.168.1.10:7447"]
+//! config_file = ""             # a full zenoh json5 config (ACL, TLS); replaces the three keys above
+//!
+//! [[export]]                   # default exports: health and commands, no images
+//! topic = "camera/front/image"
+//! max_rate_hz = 5.0            # 0 = every message
+//! downsample = 2               # images: keep every n-th pixel
+//! compression = "jpeg"         # images: "none", "jpeg" or "png"
+//! jpeg_quality = 80
+//!
+//! [[import]]                   # default imports: state/pose, nav/goal, safety/estop
+//! topic = "nav/goal"
+//! ```
+
+use farsight_interfaces::msg::*;
+use farsight_interfaces::topics::{self, kind_of, Topic, TopicKind};
+use farsight_interfaces::transport::ipc::{self, Bus, IpcHeader, IpcMessage};
+use farsight_interfaces::transport::net::{NetBus, RawPublisher, RawSubscriber};
+use farsight_interfaces::transport::{wire, TransportError};
+use farsight_stage::{ConfigError, Validate};
+use serde::{Deserialize, Serialize};
+use std::cell::RefCell;
+
+/// The bridge's config file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BridgeConfig {
+    pub robot: String,
+    pub health_rate_hz: f64,
+    pub import_poll_hz: f64,
+    pub zenoh: ZenohConfig,
+    pub export: Vec<ExportConfig>,
+    pub import: Vec<ImportConfig>,
+}
+
+impl Default for BridgeConfig {
+    fn default() -> Self {
+        Self {
+            robot: "robot".into(),
+            health_rate_hz: 1.0,
+            import_poll_hz: 100.0,
+            zenoh: ZenohConfig::default(),
+            export: ["cmd/velocity", "nav/subgoal", "state/pose"]
+                .iter()
+                .map(|t| ExportConfig::plain(t))
+                .collect(),
+            import: ["state/pose", "nav/goal", "safety/estop"]
+                .iter()
+                .map(|t| ImportConfig {
+                    topic: t.to_string(),
+                })
+                .collect(),
+        }
+    }
+}
+
+/// How the bridge joins zenoh.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ZenohConfig {
+    pub mode: String,
+    pub listen: Vec<String>,
+    pub connect: Vec<String>,
+    pub config_file: String,
+}
+
+impl Default for ZenohConfig {
+    fn default() -> Self {
+        Self {
+            mode: "peer".into(),
+            listen: vec![],
+            connect: vec![],
+            config_file: String::new(),
+        }
+    }
+}
+
+impl ZenohConfig {
+    /// The zenoh session config this describes; `base_dir` resolves a relative `config_file`.
+    pub fn to_zenoh(&self, base_dir: &std::path::Path) -> Result<zenoh::Config, anyhow::Error> {
+        if !self.config_file.is_empty() {
+            let path = base_dir.join(&self.config_file);
+            return zenoh::Config::from_file(&path)
+                .map_err(|e| anyhow::anyhow!("zenoh.config_file {}: {e}", path.display()));
+        }
+        Ok(NetBus::config(&self.mode, &self.listen, &self.connect)?)
+    }
+}
+
+/// How an image is compressed before it crosses the link.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Compression {
+    #[default]
+    None,
+    Jpeg,
+    Png,
+}
+
+/// One topic to republish on zenoh.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExportConfig {
+    pub topic: String,
+    #[serde(default)]
+    pub max_rate_hz: f64,
+    #[serde(default = "one")]
+    pub downsample: u32,
+    #[serde(default)]
+    pub compression: Compression,
+    #[serde(default = "default_quality")]
+    pub jpeg_quality: u8,
+}
+
+fn one() -> u32 {
+    1
+}
+fn default_quality() -> u8 {
+    80
+}
+
+impl ExportConfig {
+    pub fn plain(topic: &str) -> Self {
+        Self {
+            topic: topic.to_string(),
+            max_rate_hz: 0.0,
+            downsample: 1,
+            compression: Compression::None,
+            jpeg_quality: 80,
+        }
+    }
+}
+
+/// One zenoh topic to bring into iceoryx2.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImportConfig {
+    pub topic: String,
+}
+
+impl Validate for BridgeConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        topics::validate_name(&self.robot)
+            .map_err(|e| ConfigError::invalid("robot", &self.robot, e.why))?;
+        ConfigError::check(
+            self.health_rate_hz > 0.0,
+            "health_rate_hz",
+            self.health_rate_hz,
+            "a positive rate in Hz",
+        )?;
+        ConfigError::check(
+            self.import_poll_hz > 0.0,
+            "import_poll_hz",
+            self.import_poll_hz,
+            "a positive rate in Hz",
+        )?;
+        ConfigError::check(
+            ["peer", "client", "router"].contains(&self.zenoh.mode.as_str()),
+            "zenoh.mode",
+            &self.zenoh.mode,
+            "\"peer\", \"client\" or \"router\"",
+        )?;
+        for (i, e) in self.export.iter().enumerate() {
+            let key = |k: &str| format!("export[{i}].{k}");
+            let kind = kind_of(&e.topic).ok_or_else(|| {
+                ConfigError::invalid(
+                    key("topic"),
+                    &e.topic,
+                    "a farsight topic (see farsight_interfaces::topics)",
+                )
+            })?;
+            ConfigError::check(
+                e.max_rate_hz >= 0.0 && e.max_rate_hz.is_finite(),
+                &key("max_rate_hz"),
+                e.max_rate_hz,
+                "0 (every message) or a positive rate",
+            )?;
+            ConfigError::check(
+                e.downsample >= 1,
+                &key("downsample"),
+                e.downsample,
+                "1 or more",
+            )?;
+            ConfigError::check(
+                (1..=100).contains(&e.jpeg_quality),
+                &key("jpeg_quality"),
+                e.jpeg_quality,
+                "1..=100",
+            )?;
+            if kind != TopicKind::Image && (e.downsample != 1 || e.compression != Compression::None)
+            {
+                return Err(ConfigError::invalid(
+                    key("compression"),
+                    format!("{:?} / downsample {}", e.compression, e.downsample),
+                    "no compression or downsampling: only image topics can be compressed",
+                ));
+            }
+        }
+        for (i, im) in self.import.iter().enumerate() {
+            match kind_of(&im.topic) {
+                Some(k) if importable(k) => {}
+                _ => {
+                    return Err(ConfigError::invalid(
+                        format!("import[{i}].topic"),
+                        &im.topic,
+                        "a fixed-size farsight topic (pose, goal, estop, velocity, health, camera info, subgoal, path, angular bins)",
+                    ))
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+fn importable(kind: TopicKind) -> bool {
+    !matches!(
+        kind,
+        TopicKind::Image | TopicKind::Tensor | TopicKind::PolarBins | TopicKind::Costmap
+    )
+}
+
+/// Turns a frame into what crosses the link: downsampled, maybe compressed.
+pub fn transform_image(
+    cfg: &ExportConfig,
+    header: &ImageHeader,
+    data: &[u8],
+) -> Result<(ImageHeader, Vec<u8>), farsight_imaging::ImageError> {
+    let (h, d) = if cfg.downsample > 1 {
+        farsight_imaging::downsample(header, data, cfg.downsample)?
+    } else {
+        header.validate(data.len())?;
+        (*header, data.to_vec())
+    };
+    let (encoding, bytes) = match cfg.compression {
+        Compression::None => return Ok((h, d)),
+        Compression::Jpeg => (
+            PixelEncoding::JPEG,
+            farsight_imaging::encode_jpeg(&h, &d, cfg.jpeg_quality)?,
+        ),
+        Compression::Png => (PixelEncoding::PNG, farsight_imaging::encode_png(&h, &d)?),
+    };
+    Ok((
+        ImageHeader {
+            encoding,
+            stride_bytes: 0,
+            ..h
+        },
+        bytes,
+    ))
+}
+
+/// Counters of one export or import.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct LinkStats {
+    pub forwarded: u64,
+    pub rate_limited: u64,
+    pub failed: u64,
+}
+
+/// One exported topic: an iceoryx2 subscriber feeding a zenoh publisher.
+pub struct Export {
+    cfg: ExportConfig,
+    source: Source,
+    out: RawPublisher,
+    state: RefCell<(Option<u64>, LinkStats)>,
+}
+
+enum Source {
+    Image(ipc::SliceSubscriber<ImageHeader, u8>),
+    Tensor(ipc::SliceSubscriber<TensorHeader, f32>),
+    Polar(ipc::SliceSubscriber<PolarBinsHeader, PolarCell>),
+    Costmap(ipc::SliceSubscriber<CostmapHeader, CostCell>),
+    Fixed(Box<dyn FixedSource>),
+}
+
+trait FixedSource {
+    fn listener(&self) -> &ipc::InputListener;
+    fn take(&self) -> Result<Option<(Stamp, Vec<u8>)>, TransportError>;
+}
+
+struct Fixed<M: IpcMessage + Serialize>(ipc::Subscriber<M>);
+
+impl<M: IpcMessage + Serialize> FixedSource for Fixed<M> {
+    fn listener(&self) -> &ipc::InputListener {
+        self.0.listener()
+    }
+    fn take(&self) -> Result<Option<(Stamp, Vec<u8>)>, TransportError> {
+        match self.0.latest()? {
+            None => Ok(None),
+            Some(m) => {
+                let bytes = wire::encode_message(&m).map_err(|source| TransportError::Decode {
+                    topic: self.0.topic().to_string(),
+                    source,
+                })?;
+                Ok(Some((m.stamp(), bytes)))
+            }
+        }
+    }
+}
+
+fn fixed<M: IpcMessage + Serialize>(bus: &Bus, name: &str) -> Result<Source, TransportError> {
+    let topic = Topic::<M>::new(name).map_err(|e| TransportError::Setting {
+        key: "topic",
+        value: name.into(),
+        expected: e.why,
+    })?;
+    Ok(Source::Fixed(Box::new(Fixed(bus.subscriber(&topic)?))))
+}
+
+fn slice_topic<H, E>(name: &str) -> Result<Topic<topics::Slice<H, E>>, TransportError> {
+    Topic::new(name).map_err(|e| TransportError::Setting {
+        key: "topic",
+        value: name.into(),
+        expected: e.why,
+    })
+}
+
+fn encode<H: IpcHeader + Serialize, E: ipc::IpcElem>(
+    sub: &ipc::SliceSubscriber<H, E>,
+) -> Result<Option<(Stamp, Vec<u8>)>, TransportError> {
+    match sub.latest()? {
+        None => Ok(None),
+        Some(s) => {
+            let bytes = wire::encode_slice(s.header(), s.data()).map_err(|source| {
+                TransportError::Decode {
+                    topic: sub.topic().to_string(),
+                    source,
+                }
+            })?;
+            Ok(Some((s.header().stamp(), bytes)))
+        }
+    }
+}
+
+impl Export {
+    pub fn open(bus: &Bus, net: &NetBus, cfg: ExportConfig) -> Result<Self, TransportError> {
+        let name = cfg.topic.as_str();
+        let kind = kind_of(name).ok_or_else(|| TransportError::Setting {
+            key: "export.topic",
+            value: name.into(),
+            expected: "a farsight topic",
+        })?;
+        let source = match kind {
+            TopicKind::Image => Source::Image(bus.slice_subscriber(&slice_topic(name)?)?),
+            TopicKind::Tensor => Source::Tensor(bus.slice_subscriber(&slice_topic(name)?)?),
+            TopicKind::PolarBins => Source::Polar(bus.slice_subscriber(&slice_topic(name)?)?),
+            TopicKind::Costmap => Source::Costmap(bus.slice_subscriber(&slice_topic(name)?)?),
+            TopicKind::CameraInfo => fixed::<CameraInfo>(bus, name)?,
+            TopicKind::AngularBins => fixed::<AngularBins>(bus, name)?,
+            TopicKind::Subgoal => fixed::<Subgoal>(bus, name)?,
+            TopicKind::Path => fixed::<Path>(bus, name)?,
+            TopicKind::Goal => fixed::<NavGoal>(bus, name)?,
+            TopicKind::Pose => fixed::<Pose>(bus, name)?,
+            TopicKind::VelocityCommand => fixed::<VelocityCommand>(bus, name)?,
+            TopicKind::EStop => fixed::<EStop>(bus, name)?,
+            TopicKind::Health => fixed::<StageHealth>(bus, name)?,
+        };
+        // Camera streams may be dropped under congestion; everything else must arrive.
+        let out = net.bytes_publisher(name, kind == TopicKind::Image)?;
+        Ok(Self {
+            cfg,
+            source,
+            out,
+            state: RefCell::new((None, LinkStats::default())),
+        })
+    }
+
+    pub fn listener(&self) -> &ipc::InputListener {
+        match &self.source {
+            Source::Image(s) => s.listener(),
+            Source::Tensor(s) => s.listener(),
+            Source::Polar(s) => s.listener(),
+            Source::Costmap(s) => s.listener(),
+            Source::Fixed(s) => s.listener(),
+        }
+    }
+
+    pub fn topic(&self) -> &str {
+        &self.cfg.topic
+    }
+
+    pub fn stats(&self) -> LinkStats {
+        self.state.borrow().1
+    }
+
+    /// Forwards the newest message, if any and if the rate cap allows.
+    pub fn pump(&self, now_ns: u64) -> Result<bool, anyhow::Error> {
+        let taken = match &self.source {
+            Source::Image(s) => match s.latest()? {
+                None => None,
+                Some(frame) => {
+                    let (h, d) = transform_image(&self.cfg, frame.header(), frame.data())?;
+                    let bytes = wire::encode_slice(&h, &d)?;
+                    Some((h.stamp, bytes))
+                }
+            },
+            Source::Tensor(s) => encode(s)?,
+            Source::Polar(s) => encode(s)?,
+            Source::Costmap(s) => encode(s)?,
+            Source::Fixed(s) => s.take()?,
+        };
+        let Some((_stamp, bytes)) = taken else {
+            return Ok(false);
+        };
+        let mut st = self.state.borrow_mut();
+        if self.cfg.max_rate_hz > 0.0 {
+            let period = (1e9 / self.cfg.max_rate_hz) as u64;
+            if st.0.is_some_and(|t| now_ns.saturating_sub(t) < period) {
+                st.1.rate_limited += 1;
+                return Ok(false);
+            }
+        }
+        match self.out.put(bytes) {
+            Ok(()) => {
+                st.0 = Some(now_ns);
+                st.1.forwarded += 1;
+                Ok(true)
+            }
+            Err(e) => {
+                st.1.failed += 1;
+                Err(e.into())
+            }
+        }
+    }
+}
+
+/// One imported topic: a zenoh subscriber feeding an iceoryx2 publisher.
+pub struct Import {
+    topic: String,
+    input: RawSubscriber,
+    sink: Box<dyn FixedSink>,
+    pub stats: LinkStats,
+}
+
+trait FixedSink {
+    fn publish_bytes(&mut self, bytes: &[u8]) -> Result<(), TransportError>;
+}
+
+struct Sink<M: IpcMessage + serde::de::DeserializeOwned>(ipc::Publisher<M>);
+
+impl<M: IpcMessage + serde::de::DeserializeOwned> FixedSink for Sink<M> {
+    fn publish_bytes(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        let m: M = wire::decode_message(bytes).map_err(|source| TransportError::Decode {
+            topic: self.0.topic().to_string(),
+            source,
+        })?;
+        self.0.publish(&m)
+    }
+}
+
+fn sink<M: IpcMessage + serde::de::DeserializeOwned>(
+    bus: &Bus,
+    name: &str,
+) -> Result<Box<dyn FixedSink>, TransportError> {
+    let topic = Topic::<M>::new(name).map_err(|e| TransportError::Setting {
+        key: "topic",
+        value: name.into(),
+        expected: e.why,
+    })?;
+    Ok(Box::new(Sink(bus.publisher(&topic)?)))
+}
+
+impl Import {
+    pub fn open(bus: &Bus, net: &NetBus, cfg: &ImportConfig) -> Result<Self, TransportError> {
+        let name = cfg.topic.as_str();
+        let sink = match kind_of(name) {
+            Some(TopicKind::Pose) => sink::<Pose>(bus, name)?,
+            Some(TopicKind::Goal) => sink::<NavGoal>(bus, name)?,
+            Some(TopicKind::EStop) => sink::<EStop>(bus, name)?,
+            Some(TopicKind::VelocityCommand) => sink::<VelocityCommand>(bus, name)?,
+            Some(TopicKind::Health) => sink::<StageHealth>(bus, name)?,
+            Some(TopicKind::CameraInfo) => sink::<CameraInfo>(bus, name)?,
+            Some(TopicKind::Subgoal) => sink::<Subgoal>(bus, name)?,
+            Some(TopicKind::Path) => sink::<Path>(bus, name)?,
+            Some(TopicKind::AngularBins) => sink::<AngularBins>(bus, name)?,
+            _ => {
+                return Err(TransportError::Setting {
+                    key: "import.topic",
+                    value: name.into(),
+                    expected: "a fixed-size farsight topic",
+                })
+            }
+        };
+        Ok(Self {
+            topic: name.to_string(),
+            input: net.bytes_subscriber(name)?,
+            sink,
+            stats: LinkStats::default(),
+        })
+    }
+
+    pub fn topic(&self) -> &str {
+        &self.topic
+    }
+
+    /// Moves the newest zenoh message (if any) into iceoryx2. A payload that
+    /// does not decode is counted and reported, never forwarded.
+    pub fn pump(&mut self) -> Result<bool, TransportError> {
+        let Some(bytes) = self.input.try_latest()? else {
+            return Ok(false);
+        };
+        match self.sink.publish_bytes(&bytes) {
+            Ok(()) => {
+                self.stats.forwarded += 1;
+                Ok(true)
+            }
+            Err(e) => {
+                self.stats.failed += 1;
+                Err(e)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn config_errors_name_the_entry() {
+        let e = farsight_stage::parse_config::<BridgeConfig>(
+            "[[export]]\ntopic = \"nope/x\"",
+            "b.toml",
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("config key `export[0].topic` = nope/x"),
+            "{e}"
+        );
+        let e = farsight_stage::parse_config::<BridgeConfig>(
+            "[[export]]\ntopic = \"cmd/velocity\"\ncompression = \"jpeg\"",
+            "b.toml",
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("only image topics"), "{e}");
+        let e = farsight_stage::parse_config::<BridgeConfig>(
+            "[[import]]\ntopic = \"camera/front/image\"",
+            "b.toml",
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("import[0].topic"), "{e}");
+        let ok =
+            farsight_stage::parse_config::<BridgeConfig>("robot = \"husky1\"", "b.toml").unwrap();
+        assert_eq!(ok.import.len(), 3);
+    }
+
+    #[test]
+    fn image_export_downsamples_and_compresses() {
+        let h = ImageHeader::packed(Stamp::new(9, 1), 0, 64, 32, PixelEncoding::RGB8);
+        let d = vec![100u8; 64 * 32 * 3];
+        let cfg = ExportConfig {
+            downsample: 2,
+            compression: Compression::Jpeg,
+            ..ExportConfig::plain("camera/front/image")
+        };
+        let (oh, od) = transform_image(&cfg, &h, &d).unwrap();
+        assert_eq!(
+            (oh.width, oh.height, oh.encoding, oh.stamp),
+            (32, 16, PixelEncoding::JPEG, h.stamp)
+        );
+        assert!(od.len() < 32 * 16 * 3);
+        let (raw, _) = transform_image(&ExportConfig::plain("camera/front/image"), &h, &d).unwrap();
+        assert_eq!(raw, h);
+        assert!(transform_image(&cfg, &h, &d[1..]).is_err());
+    }
+}
