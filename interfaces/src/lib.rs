@@ -16,9 +16,11 @@
 //!
 //! // Publisher side: write a 640x360 RGB frame straight into shared memory.
 //! let bus = Bus::open("camera-ingest")?;
-//! let mut frames = bus.slice_publisher(&topics::camera_image("front"), 640 * 360 * 3)?;
-//! let header = ImageHeader::packed(Stamp::new(0, 0), 0, 640, 360, PixelEncoding::RGB8);
-//! frames.publish_with(header, 640 * 360 * 3, |pixels| pixels.fill(128))?;
+//! let frames = bus.slice_publisher(&topics::camera_image("front"), 640 * 360 * 3)?;
+//! frames.publish_with(640 * 360 * 3, |pixels| {
+//!     pixels.fill(128); // decode or capture straight into shared memory
+//!     ImageHeader::packed(Stamp::new(0, 0), 0, 640, 360, PixelEncoding::RGB8)
+//! })?;
 //!
 //! // Consumer side: read the newest frame in place.
 //! let sub = bus.slice_subscriber(&topics::camera_image("front"))?;

@@ -17,7 +17,7 @@
 //! use farsight_interfaces::{msg::*, topics, transport::ipc::Bus};
 //!
 //! let bus = Bus::open("example")?;
-//! let mut publisher = bus.publisher(&topics::velocity_command())?;
+//! let publisher = bus.publisher(&topics::velocity_command())?;
 //! let subscriber = bus.subscriber(&topics::velocity_command())?;
 //! publisher.publish(&VelocityCommand::stop(Stamp::new(1, 0), CommandReason::ESTOP))?;
 //! if let Some(cmd) = subscriber.latest()? {
@@ -236,7 +236,7 @@ impl Bus {
             port,
             notifier,
             topic: topic.name().to_string(),
-            sent: 0,
+            sent: Cell::new(0),
         })
     }
 
@@ -307,7 +307,7 @@ impl Bus {
             notifier,
             topic: topic.name().to_string(),
             max_len,
-            sent: 0,
+            sent: Cell::new(0),
         })
     }
 
@@ -375,23 +375,23 @@ pub struct Publisher<M: IpcMessage> {
     port: IoxPublisher<ipc::Service, M, ()>,
     notifier: Notifier<ipc::Service>,
     topic: String,
-    sent: u64,
+    sent: Cell<u64>,
 }
 
 impl<M: IpcMessage> Publisher<M> {
     /// Copies `msg` into shared memory and wakes the subscribers.
-    pub fn publish(&mut self, msg: &M) -> Result<(), TransportError> {
+    pub fn publish(&self, msg: &M) -> Result<(), TransportError> {
         self.port
             .send_copy(*msg)
             .map_err(|e| ipc_err("send", &self.topic, e))?;
-        self.sent += 1;
+        self.sent.set(self.sent.get() + 1);
         // A listener that is gone is not this publisher's failure.
         let _ = self.notifier.notify();
         Ok(())
     }
 
     pub fn sent(&self) -> u64 {
-        self.sent
+        self.sent.get()
     }
 
     pub fn topic(&self) -> &str {
@@ -451,7 +451,7 @@ pub struct SlicePublisher<H: IpcHeader, E: IpcElem> {
     notifier: Notifier<ipc::Service>,
     topic: String,
     max_len: usize,
-    sent: u64,
+    sent: Cell<u64>,
 }
 
 impl<H: IpcHeader, E: IpcElem> SlicePublisher<H, E> {
@@ -469,12 +469,13 @@ impl<H: IpcHeader, E: IpcElem> SlicePublisher<H, E> {
     }
 
     /// Loans `len` zeroed elements in shared memory, lets `fill` write them in
-    /// place, then sends. The only copy of the data is the one `fill` makes.
+    /// place and return the header, then sends. The only copy of the data is
+    /// the one `fill` makes; the header is built last so it can describe what
+    /// was written (decoded size, send time).
     pub fn publish_with(
-        &mut self,
-        header: H,
+        &self,
         len: usize,
-        fill: impl FnOnce(&mut [E]),
+        fill: impl FnOnce(&mut [E]) -> H,
     ) -> Result<(), TransportError> {
         self.check_len(len)?;
         let sample = self
@@ -482,16 +483,16 @@ impl<H: IpcHeader, E: IpcElem> SlicePublisher<H, E> {
             .loan_slice_uninit(len)
             .map_err(|e| ipc_err("loan", &self.topic, e))?;
         let mut sample = sample.write_from_fn(|_| E::zeroed());
+        let header = fill(sample.payload_mut());
         *sample.user_header_mut() = header;
-        fill(sample.payload_mut());
         sample.send().map_err(|e| ipc_err("send", &self.topic, e))?;
-        self.sent += 1;
+        self.sent.set(self.sent.get() + 1);
         let _ = self.notifier.notify();
         Ok(())
     }
 
     /// Copies `data` into shared memory and sends it.
-    pub fn publish_copy(&mut self, header: H, data: &[E]) -> Result<(), TransportError> {
+    pub fn publish_copy(&self, header: H, data: &[E]) -> Result<(), TransportError> {
         self.check_len(data.len())?;
         let sample = self
             .port
@@ -500,7 +501,7 @@ impl<H: IpcHeader, E: IpcElem> SlicePublisher<H, E> {
         let mut sample = sample.write_from_slice(data);
         *sample.user_header_mut() = header;
         sample.send().map_err(|e| ipc_err("send", &self.topic, e))?;
-        self.sent += 1;
+        self.sent.set(self.sent.get() + 1);
         let _ = self.notifier.notify();
         Ok(())
     }
@@ -510,7 +511,7 @@ impl<H: IpcHeader, E: IpcElem> SlicePublisher<H, E> {
     }
 
     pub fn sent(&self) -> u64 {
-        self.sent
+        self.sent.get()
     }
 
     pub fn topic(&self) -> &str {

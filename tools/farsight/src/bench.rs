@@ -1,10 +1,390 @@
-//! Benchmarks that print tables.
-use anyhow::Result;
-use clap::Subcommand;
+//! `farsight bench transport`: publish-to-receive latency of one message, for
+//! several sizes, over iceoryx2 zero-copy, zenoh on loopback TCP and a plain
+//! Unix-socket copy, measured in one run and printed as a table.
+//!
+//! Each cell uses two processes: this one publishes, a child receives. The send
+//! time is taken when the payload is complete, right before it is handed to the
+//! transport; the receive time when the receiver holds the whole message (for
+//! iceoryx2: a reference into shared memory, nothing copied). Both processes
+//! read the same system clock.
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand, ValueEnum};
+use farsight_interfaces::clock::{Clock, WallClock};
+use farsight_interfaces::msg::{ImageHeader, PixelEncoding, Stamp};
+use farsight_interfaces::topics::{ImageTopic, Topic};
+use farsight_interfaces::transport::ipc::{self, Bus, IpcSettings};
+use farsight_interfaces::transport::net::NetBus;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::ops::ControlFlow;
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
 
 #[derive(Subcommand)]
-pub enum BenchCommand {}
+pub enum BenchCommand {
+    /// Latency table: iceoryx2 vs zenoh vs Unix socket, 64 B to 6 MB.
+    Transport(TransportArgs),
+    /// (internal) the receiving side of one cell of the transport benchmark.
+    #[command(hide = true)]
+    TransportReceiver(ReceiverArgs),
+}
+
+#[derive(Args)]
+pub struct TransportArgs {
+    /// Message sizes in bytes.
+    #[arg(long, value_delimiter = ',', default_values_t = [64usize, 1 << 20, 6 << 20])]
+    sizes: Vec<usize>,
+    /// Messages per cell.
+    #[arg(long, default_value_t = 200)]
+    count: usize,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum, Debug)]
+pub enum Kind {
+    /// iceoryx2, receiver polls.
+    IpcPoll,
+    /// iceoryx2, receiver sleeps on a WaitSet and is woken by the paired event.
+    IpcWait,
+    /// zenoh peer-to-peer over loopback TCP.
+    Zenoh,
+    /// A Unix stream socket, the payload copied through the kernel.
+    Unix,
+}
+
+impl Kind {
+    fn label(self) -> &'static str {
+        match self {
+            Kind::IpcPoll => "iceoryx2 (poll)",
+            Kind::IpcWait => "iceoryx2 (WaitSet)",
+            Kind::Zenoh => "zenoh tcp loopback",
+            Kind::Unix => "unix socket copy",
+        }
+    }
+}
+
+#[derive(Args)]
+pub struct ReceiverArgs {
+    #[arg(long, value_enum)]
+    kind: Kind,
+    #[arg(long)]
+    size: usize,
+    #[arg(long)]
+    count: usize,
+    /// iceoryx2 prefix, zenoh endpoint or socket path.
+    #[arg(long)]
+    endpoint: String,
+}
 
 pub fn run(cmd: BenchCommand) -> Result<()> {
-    match cmd {}
+    match cmd {
+        BenchCommand::Transport(a) => transport(a),
+        BenchCommand::TransportReceiver(a) => receiver(a),
+    }
+}
+
+fn topic() -> ImageTopic {
+    Topic::new("bench/transport").expect("valid name")
+}
+
+fn now_ns() -> u64 {
+    WallClock.now_ns()
+}
+
+/// Median and 99th percentile of latencies in nanoseconds.
+fn stats(mut v: Vec<u64>) -> (f64, f64) {
+    v.sort_unstable();
+    let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize] as f64;
+    (at(0.5), at(0.99))
+}
+
+fn human_size(n: usize) -> String {
+    match n {
+        n if n >= 1 << 20 && n % (1 << 20) == 0 => format!("{} MB", n >> 20),
+        n if n >= 1 << 10 && n % (1 << 10) == 0 => format!("{} kB", n >> 10),
+        n => format!("{n} B"),
+    }
+}
+
+struct Receiver {
+    child: Child,
+    out: BufReader<std::process::ChildStdout>,
+}
+
+impl Receiver {
+    fn start(kind: Kind, size: usize, count: usize, endpoint: &str) -> Result<Self> {
+        let mut child = Command::new(std::env::current_exe()?)
+            .args([
+                "bench",
+                "transport-receiver",
+                "--size",
+                &size.to_string(),
+                "--count",
+                &count.to_string(),
+            ])
+            .args(["--endpoint", endpoint])
+            .arg("--kind")
+            .arg(kind.to_possible_value().expect("value").get_name())
+            .stdout(Stdio::piped())
+            .spawn()
+            .context("starting the receiver process")?;
+        let out = BufReader::new(child.stdout.take().expect("stdout"));
+        Ok(Self { child, out })
+    }
+
+    fn line(&mut self) -> Result<String> {
+        let mut l = String::new();
+        self.out.read_line(&mut l)?;
+        if l.is_empty() {
+            bail!("receiver exited early ({:?})", self.child.wait()?);
+        }
+        Ok(l.trim().to_string())
+    }
+
+    fn wait_ready(&mut self) -> Result<()> {
+        let l = self.line()?;
+        if l != "ready" {
+            bail!("receiver said {l:?} instead of ready");
+        }
+        Ok(())
+    }
+
+    /// `result <median_ns> <p99_ns> <n>`
+    fn result(mut self) -> Result<(f64, f64, usize)> {
+        let l = self.line()?;
+        let _ = self.child.wait();
+        let parts: Vec<&str> = l.split_whitespace().collect();
+        match parts.as_slice() {
+            ["result", m, p, n] => Ok((m.parse()?, p.parse()?, n.parse()?)),
+            _ => bail!("unexpected receiver output {l:?}"),
+        }
+    }
+}
+
+/// Pause between messages: long enough that the largest copy finishes and the
+/// receiver is idle again, so each message is timed alone.
+fn gap(size: usize) -> Duration {
+    Duration::from_micros(2000 + (size / 1000) as u64)
+}
+
+fn send_cell(kind: Kind, size: usize, count: usize) -> Result<(f64, f64, usize)> {
+    let tag = format!("bench{}_{}_", std::process::id(), now_ns() % 1_000_000);
+    match kind {
+        Kind::IpcPoll | Kind::IpcWait => {
+            let settings = IpcSettings {
+                prefix: Some(tag.clone()),
+                root: None,
+            };
+            let bus = Bus::open_with("bench-sender", &settings)?;
+            let publisher = bus.slice_publisher(&topic(), size)?;
+            let mut rx = Receiver::start(kind, size, count, &tag)?;
+            rx.wait_ready()?;
+            std::thread::sleep(Duration::from_millis(200));
+            for i in 0..count + 1 {
+                publisher.publish_with(size, |buf| {
+                    buf[0] = i as u8;
+                    ImageHeader::packed(
+                        Stamp::new(i as u64 + 1, now_ns()),
+                        0,
+                        size as u32,
+                        1,
+                        PixelEncoding::MONO8,
+                    )
+                })?;
+                std::thread::sleep(gap(size));
+            }
+            let r = rx.result();
+            drop(publisher);
+            drop(bus);
+            cleanup_shm(&tag);
+            r
+        }
+        Kind::Zenoh => {
+            let port = std::net::TcpListener::bind("127.0.0.1:0")?
+                .local_addr()?
+                .port();
+            let endpoint = format!("tcp/127.0.0.1:{port}");
+            let net = NetBus::open(NetBus::config("peer", &[endpoint.clone()], &[])?, "bench")?;
+            let publisher = net.bytes_publisher("bench/transport", false)?;
+            let mut rx = Receiver::start(kind, size, count, &endpoint)?;
+            rx.wait_ready()?;
+            // Let the subscription propagate to this peer.
+            std::thread::sleep(Duration::from_millis(1500));
+            let template = vec![7u8; size.max(8)];
+            for _ in 0..count + 1 {
+                let mut msg = template.clone();
+                msg[..8].copy_from_slice(&now_ns().to_le_bytes());
+                publisher.put(msg)?;
+                std::thread::sleep(gap(size));
+            }
+            rx.result()
+        }
+        Kind::Unix => {
+            let path = std::env::temp_dir().join(format!("{tag}.sock"));
+            let listener = UnixListener::bind(&path)?;
+            let mut rx = Receiver::start(kind, size, count, path.to_str().unwrap_or_default())?;
+            let (mut stream, _) = listener.accept()?;
+            rx.wait_ready()?;
+            let mut msg = vec![7u8; size.max(8)];
+            for _ in 0..count + 1 {
+                msg[..8].copy_from_slice(&now_ns().to_le_bytes());
+                stream.write_all(&msg)?;
+                std::thread::sleep(gap(size));
+            }
+            let r = rx.result();
+            let _ = std::fs::remove_file(&path);
+            r
+        }
+    }
+}
+
+fn cleanup_shm(prefix: &str) {
+    if let Ok(entries) = std::fs::read_dir("/dev/shm") {
+        for e in entries.flatten() {
+            if e.file_name().to_string_lossy().starts_with(prefix) {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+    }
+}
+
+fn transport(a: TransportArgs) -> Result<()> {
+    let kinds = [Kind::IpcPoll, Kind::IpcWait, Kind::Zenoh, Kind::Unix];
+    let mut table = Vec::new();
+    for &size in &a.sizes {
+        let mut row = Vec::new();
+        for kind in kinds {
+            eprint!(
+                "\rmeasuring {:>6} over {:<20}",
+                human_size(size),
+                kind.label()
+            );
+            let r = send_cell(kind, size, a.count)
+                .with_context(|| format!("{} at {}", kind.label(), human_size(size)))?;
+            row.push(r);
+        }
+        table.push((size, row));
+    }
+    eprintln!("\r{:60}", "");
+    println!("publish -> receive latency, median / p99 in microseconds ({} messages per cell, one run)\n", a.count);
+    print!("| size |");
+    for k in kinds {
+        print!(" {} |", k.label());
+    }
+    println!("\n|---|{}", "---|".repeat(kinds.len()));
+    for (size, row) in &table {
+        print!("| {} |", human_size(*size));
+        for (m, p, n) in row {
+            let note = if *n < a.count {
+                format!(" ({n} recv)")
+            } else {
+                String::new()
+            };
+            print!(" {:.1} / {:.1}{note} |", m / 1e3, p / 1e3);
+        }
+        println!();
+    }
+    if let Some((size, row)) = table.last() {
+        println!(
+            "\nat {}: unix socket copy / iceoryx2 (poll) median = {:.0}x, / iceoryx2 (WaitSet) = {:.0}x",
+            human_size(*size),
+            row[3].0 / row[0].0.max(1.0),
+            row[3].0 / row[1].0.max(1.0)
+        );
+    }
+    Ok(())
+}
+
+fn receiver(a: ReceiverArgs) -> Result<()> {
+    let mut lat = Vec::with_capacity(a.count);
+    let out = |s: &str| {
+        println!("{s}");
+        std::io::stdout().flush().ok();
+    };
+    match a.kind {
+        Kind::IpcPoll | Kind::IpcWait => {
+            let settings = IpcSettings {
+                prefix: Some(a.endpoint.clone()),
+                root: None,
+            };
+            let bus = Bus::open_with("bench-receiver", &settings)?;
+            let sub = bus.slice_subscriber(&topic())?;
+            // The history of one may replay the last sample: skip anything already there.
+            while sub.latest()?.is_some() {}
+            out("ready");
+            let deadline = Instant::now() + Duration::from_secs(60);
+            // The first message warms up the connection and is not counted.
+            let mut first = true;
+            let mut take = |lat: &mut Vec<u64>| -> Result<bool> {
+                if let Some(s) = sub.latest()? {
+                    let t = now_ns();
+                    if !first {
+                        lat.push(t.saturating_sub(s.header().stamp.capture_time_ns));
+                    }
+                    first = false;
+                    return Ok(true);
+                }
+                Ok(false)
+            };
+            if a.kind == Kind::IpcPoll {
+                while lat.len() < a.count && Instant::now() < deadline {
+                    if !take(&mut lat)? {
+                        std::hint::spin_loop();
+                    }
+                }
+            } else {
+                let mut err = None;
+                ipc::wait_loop(&[sub.listener()], Some(Duration::from_millis(100)), |_| {
+                    if let Err(e) = take(&mut lat) {
+                        err = Some(e);
+                        return ControlFlow::Break(());
+                    }
+                    if lat.len() >= a.count || Instant::now() > deadline {
+                        ControlFlow::Break(())
+                    } else {
+                        ControlFlow::Continue(())
+                    }
+                })?;
+                if let Some(e) = err {
+                    return Err(e);
+                }
+            }
+        }
+        Kind::Zenoh => {
+            let net = NetBus::open(NetBus::config("peer", &[], &[a.endpoint.clone()])?, "bench")?;
+            let sub = net.bytes_subscriber("bench/transport")?;
+            out("ready");
+            let mut first = true;
+            let deadline = Instant::now() + Duration::from_secs(60);
+            while lat.len() < a.count && Instant::now() < deadline {
+                if let Some(msg) = sub.recv_timeout(Duration::from_millis(200))? {
+                    let t = now_ns();
+                    let sent = u64::from_le_bytes(msg[..8].try_into()?);
+                    if !first {
+                        lat.push(t.saturating_sub(sent));
+                    }
+                    first = false;
+                }
+            }
+        }
+        Kind::Unix => {
+            let mut stream = UnixStream::connect(&a.endpoint)?;
+            out("ready");
+            let mut buf = vec![0u8; a.size.max(8)];
+            for i in 0..a.count + 1 {
+                stream.read_exact(&mut buf)?;
+                let t = now_ns();
+                if i > 0 {
+                    lat.push(t.saturating_sub(u64::from_le_bytes(buf[..8].try_into()?)));
+                }
+            }
+        }
+    }
+    if lat.is_empty() {
+        bail!("no messages received");
+    }
+    let n = lat.len();
+    let (m, p) = stats(lat);
+    out(&format!("result {m} {p} {n}"));
+    Ok(())
 }

@@ -119,7 +119,7 @@ fn publish(a: PublishArgs) -> Result<()> {
     }
     let bus = Bus::open("probe-publisher")?;
     let len = a.width as usize * a.height as usize * 3;
-    let mut frames = bus.slice_publisher(&topics::camera_image(&a.camera), len)?;
+    let frames = bus.slice_publisher(&topics::camera_image(&a.camera), len)?;
     let mut seq = a.start_seq;
     let mut sent = 0u64;
     let period = Duration::from_secs_f64(1.0 / a.rate_hz);
@@ -131,14 +131,17 @@ fn publish(a: PublishArgs) -> Result<()> {
         frames.topic()
     );
     let exit = ipc::wait_loop(&[], Some(period), |_| {
-        let header = ImageHeader::packed(
-            Stamp::new(seq, WallClock.now_ns()),
-            0,
-            a.width,
-            a.height,
-            PixelEncoding::RGB8,
-        );
-        if let Err(e) = frames.publish_with(header, len, |px| fill_pattern(seq, px)) {
+        let sent_frame = frames.publish_with(len, |px| {
+            fill_pattern(seq, px);
+            ImageHeader::packed(
+                Stamp::new(seq, WallClock.now_ns()),
+                0,
+                a.width,
+                a.height,
+                PixelEncoding::RGB8,
+            )
+        });
+        if let Err(e) = sent_frame {
             eprintln!("publish failed: {e}");
             return ControlFlow::Break(());
         }

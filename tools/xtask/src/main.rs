@@ -1,1 +1,205 @@
-fn main() {}
+//! Project automation, as `cargo xtask <command>`:
+//!
+//! - `setup`: fetch ONNX Runtime from the `onnxruntime` PyPI wheel into the
+//!   cache (`$FARSIGHT_CACHE`, default `~/.cache/farsight`) and print its path;
+//! - `test`: every check CI runs: fmt, clippy, build, all tests, then one
+//!   summary line;
+//! - `bench transport`: the transport latency table;
+//! - `demo`: build and run the graph on the real frames in `../shared/data/orfd`.
+//!
+//! Dependency-free on purpose, so it starts in seconds on a fresh clone.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitCode, Stdio};
+
+/// The ONNX Runtime release `ort` 2.0.0-rc.15 targets.
+const ORT_VERSION: &str = "1.31.1";
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let result = match args.first().map(String::as_str) {
+        Some("setup") => setup().map(|p| println!("ONNX Runtime: {}", p.display())),
+        Some("test") => test(),
+        Some("bench") => bench(&args[1..]),
+        Some("demo") => demo(&args[1..]),
+        _ => {
+            eprintln!(
+                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, clippy, build and every test\n  bench transport   iceoryx2 vs zenoh vs Unix socket latency table\n  demo [--out DIR]  run the graph on the real ORFD frames"
+            );
+            return ExitCode::from(2);
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("xtask: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+type Result<T> = std::result::Result<T, String>;
+
+fn root() -> PathBuf {
+    // tools/xtask -> repository root
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .ancestors()
+        .nth(2)
+        .expect("xtask lives in tools/xtask")
+        .to_path_buf()
+}
+
+fn cache_dir() -> PathBuf {
+    if let Ok(d) = std::env::var("FARSIGHT_CACHE") {
+        return PathBuf::from(d);
+    }
+    let home = std::env::var("HOME").unwrap_or_else(|_| "/tmp".into());
+    PathBuf::from(home).join(".cache/farsight")
+}
+
+fn run(cmd: &mut Command) -> Result<()> {
+    let shown = format!("{cmd:?}");
+    eprintln!("xtask: running {shown}");
+    let status = cmd.status().map_err(|e| format!("{shown}: {e}"))?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!("{shown} failed ({status})"))
+    }
+}
+
+fn cargo() -> Command {
+    let mut c = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+    c.current_dir(root());
+    c
+}
+
+/// Makes sure the ONNX Runtime shared library is in the cache; returns its path.
+/// Downloads the `onnxruntime` wheel with `pip download` (nothing is installed
+/// into Python) and unpacks only the library.
+fn setup() -> Result<PathBuf> {
+    let dir = cache_dir().join(format!("onnxruntime-{ORT_VERSION}"));
+    let lib = dir.join(format!("libonnxruntime.so.{ORT_VERSION}"));
+    if lib.exists() {
+        return Ok(lib);
+    }
+    std::fs::create_dir_all(&dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
+    let tmp = dir.join("download");
+    let _ = std::fs::remove_dir_all(&tmp);
+    eprintln!("xtask: fetching onnxruntime=={ORT_VERSION} from PyPI (about 17 MB, once)");
+    run(Command::new("python3")
+        .args([
+            "-m",
+            "pip",
+            "download",
+            "--quiet",
+            "--no-deps",
+            "--disable-pip-version-check",
+        ])
+        .arg(format!("onnxruntime=={ORT_VERSION}"))
+        .arg("-d")
+        .arg(&tmp))?;
+    let wheel = std::fs::read_dir(&tmp)
+        .map_err(|e| e.to_string())?
+        .flatten()
+        .map(|e| e.path())
+        .find(|p| p.extension().is_some_and(|x| x == "whl"))
+        .ok_or("pip download produced no wheel")?;
+    let member = format!("onnxruntime/capi/libonnxruntime.so.{ORT_VERSION}");
+    let script = format!(
+        "import zipfile,sys\nz=zipfile.ZipFile(sys.argv[1])\nopen(sys.argv[2],'wb').write(z.read('{member}'))\n\
+         [open(sys.argv[3]+'/'+n.split('/')[-1],'wb').write(z.read(n)) for n in z.namelist() if n.endswith('.onnx') and '/datasets/' in n]"
+    );
+    let partial = dir.join("libonnxruntime.partial");
+    run(Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .arg(&wheel)
+        .arg(&partial)
+        .arg(&dir))?;
+    // Rename last, so an interrupted download never leaves a half library behind.
+    std::fs::rename(&partial, &lib).map_err(|e| e.to_string())?;
+    let _ = std::fs::remove_dir_all(&tmp);
+    Ok(lib)
+}
+
+/// Runs `cargo test` with output passed through, and adds up its result lines.
+fn cargo_test(ort: &Path) -> Result<(u64, u64, u64)> {
+    let mut child = cargo()
+        .args(["test", "--release", "--workspace", "--no-fail-fast"])
+        .env("ORT_DYLIB_PATH", ort)
+        .stdout(Stdio::piped())
+        .spawn()
+        .map_err(|e| e.to_string())?;
+    let (mut passed, mut failed, mut ignored) = (0, 0, 0);
+    for line in BufReader::new(child.stdout.take().expect("stdout"))
+        .lines()
+        .map_while(|l| l.ok())
+    {
+        println!("{line}");
+        if let Some(rest) = line.strip_prefix("test result: ") {
+            let num = |word: &str| {
+                rest.split(';')
+                    .find_map(|part| part.trim().strip_suffix(word).map(str::trim))
+                    .and_then(|n| n.rsplit(' ').next())
+                    .and_then(|n| n.parse::<u64>().ok())
+                    .unwrap_or(0)
+            };
+            passed += num("passed");
+            failed += num("failed");
+            ignored += num("ignored");
+        }
+    }
+    let status = child.wait().map_err(|e| e.to_string())?;
+    if !status.success() && failed == 0 {
+        failed += 1; // a test binary that failed to build or crashed
+    }
+    Ok((passed, failed, ignored))
+}
+
+fn test() -> Result<()> {
+    let ort = setup()?;
+    run(cargo().args(["fmt", "--all", "--check"]))?;
+    run(cargo().args([
+        "clippy",
+        "--release",
+        "--workspace",
+        "--all-targets",
+        "--",
+        "-D",
+        "warnings",
+    ]))?;
+    // The end-to-end tests start the real binaries, so build them all first.
+    run(cargo().args(["build", "--release", "--workspace"]))?;
+    let (passed, failed, ignored) = cargo_test(&ort)?;
+    println!("summary: {passed} passed, {failed} failed, {ignored} skipped");
+    if failed > 0 {
+        return Err(format!("{failed} tests failed"));
+    }
+    Ok(())
+}
+
+fn bench(args: &[String]) -> Result<()> {
+    match args.first().map(String::as_str) {
+        Some("transport") => {
+            run(cargo().args(["build", "--release", "-p", "farsight-cli"]))?;
+            run(Command::new(root().join("target/release/farsight"))
+                .args(["bench", "transport"])
+                .args(&args[1..]))
+        }
+        other => Err(format!(
+            "unknown benchmark {other:?}: try `cargo xtask bench transport`"
+        )),
+    }
+}
+
+fn demo(args: &[String]) -> Result<()> {
+    let ort = setup()?;
+    run(cargo().args(["build", "--release", "--workspace"]))?;
+    run(Command::new(root().join("target/release/farsight"))
+        .current_dir(root())
+        .env("ORT_DYLIB_PATH", ort)
+        .arg("demo")
+        .args(args))
+}
