@@ -4,9 +4,11 @@
 //! farsight probe publish   --width 1440 --height 1080 --rate-hz 30   # test frames into shared memory
 //! farsight probe subscribe --frames 90                              # receive and check every byte
 //! farsight bench transport                                           # iceoryx2 vs zenoh vs Unix socket
+//! farsight demo                                                      # the graph on real frames
 //! ```
 
 mod bench;
+mod demo;
 mod probe;
 
 use clap::{Parser, Subcommand};
@@ -30,6 +32,8 @@ enum Command {
     /// Benchmarks that print a table.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Run the graph on the real ORFD frames and watch it over zenoh.
+    Demo(demo::DemoArgs),
 }
 
 fn main() {
@@ -38,6 +42,7 @@ fn main() {
     let result = match cli.command {
         Command::Probe(c) => probe::run(c),
         Command::Bench(c) => bench::run(c),
+        Command::Demo(a) => demo::run(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

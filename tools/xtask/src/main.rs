@@ -72,6 +72,16 @@ fn run(cmd: &mut Command) -> Result<()> {
 fn cargo() -> Command {
     let mut c = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
     c.current_dir(root());
+    // `cargo run` hands xtask its own package's environment; passed on, it changes
+    // build-script fingerprints and a plain `cargo build` would rebuild everything.
+    for (k, _) in std::env::vars_os() {
+        let k = k.to_string_lossy().to_string();
+        if k == "LD_LIBRARY_PATH"
+            || (k.starts_with("CARGO_") && k != "CARGO_HOME" && k != "CARGO_TARGET_DIR")
+        {
+            c.env_remove(k);
+        }
+    }
     c
 }
 

@@ -1,0 +1,217 @@
+//! `farsight demo`: runs the graph as separate processes on the real ORFD
+//! off-road frames and watches it the way a laptop would.
+//!
+//! camera-ingest (folder of real frames) -> iceoryx2 shared memory -> bridge ->
+//! zenoh -> this process, which saves every frame it receives as PNG and prints
+//! rates, sizes and stage health. Later stages join as they land.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use farsight_interfaces::msg::{HealthState, PixelEncoding};
+use farsight_interfaces::topics;
+use farsight_interfaces::transport::net::NetBus;
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+#[derive(Args)]
+pub struct DemoArgs {
+    /// Output folder (frames, configs, summary).
+    #[arg(long, default_value = "out/demo")]
+    out: PathBuf,
+    /// Folder of frames to play.
+    #[arg(long, default_value = "../shared/data/orfd/image_data")]
+    frames: PathBuf,
+    /// Passes over the folder.
+    #[arg(long, default_value_t = 3)]
+    loops: u32,
+    /// Frames per second.
+    #[arg(long, default_value_t = 10.0)]
+    rate_hz: f64,
+}
+
+struct Stage(Child);
+
+impl Drop for Stage {
+    fn drop(&mut self) {
+        // SIGTERM first so the stage publishes its last health and cleans up.
+        let _ = Command::new("kill")
+            .arg("-TERM")
+            .arg(self.0.id().to_string())
+            .status();
+        let end = Instant::now() + Duration::from_secs(3);
+        while Instant::now() < end {
+            if let Ok(Some(_)) = self.0.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn sibling(name: &str) -> Result<PathBuf> {
+    let p = std::env::current_exe()?.with_file_name(name);
+    if !p.exists() {
+        bail!(
+            "{} not found: build the workspace first (cargo xtask demo does)",
+            p.display()
+        );
+    }
+    Ok(p)
+}
+
+fn start(name: &'static str, config: &Path, prefix: &str, log: &Path) -> Result<Stage> {
+    let log_file = std::fs::File::create(log)?;
+    let child = Command::new(sibling(&format!("farsight-{name}"))?)
+        .arg("--config")
+        .arg(config)
+        .env("FARSIGHT_IPC_PREFIX", prefix)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(log_file)
+        .spawn()
+        .with_context(|| format!("starting farsight-{name}"))?;
+    Ok(Stage(child))
+}
+
+pub fn run(a: DemoArgs) -> Result<()> {
+    let frames = std::fs::canonicalize(&a.frames).with_context(|| {
+        format!(
+            "frames folder {} (run from the repository root, next to ../shared)",
+            a.frames.display()
+        )
+    })?;
+    let out = a.out.clone();
+    std::fs::create_dir_all(out.join("frames"))?;
+    let out = std::fs::canonicalize(&out)?;
+    let prefix = format!("demo{}_", std::process::id());
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+
+    let ingest_cfg = out.join("camera-ingest.toml");
+    std::fs::write(
+        &ingest_cfg,
+        format!(
+            "# ORFD camera (calib/cam_K), mounted 1.6 m up, looking ahead.\nfolder = {:?}\nrate_hz = {}\nloops = {}\n\n\
+             [camera]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\nxyz_m = [0.0, 0.0, 1.6]\n",
+            frames.display().to_string(),
+            a.rate_hz,
+            a.loops
+        ),
+    )?;
+    let bridge_cfg = out.join("bridge.toml");
+    std::fs::write(
+        &bridge_cfg,
+        format!(
+            "robot = \"demo\"\n\n[zenoh]\nmode = \"peer\"\nlisten = [\"{endpoint}\"]\n\n\
+             [[export]]\ntopic = \"camera/front/image\"\ndownsample = 2\ncompression = \"png\"\n\n\
+             [[export]]\ntopic = \"health/camera-ingest\"\n\n[[export]]\ntopic = \"camera/front/info\"\n"
+        ),
+    )?;
+
+    println!("farsight demo: camera-ingest -> iceoryx2 -> bridge -> zenoh -> this view");
+    println!("  frames: {}", frames.display());
+    println!("  output: {}", out.display());
+    let bridge = start("bridge", &bridge_cfg, &prefix, &out.join("bridge.log"))?;
+    let mut bridge = bridge;
+    let mut ready = String::new();
+    BufReader::new(bridge.0.stdout.take().expect("stdout")).read_line(&mut ready)?;
+    if ready.trim() != "bridge ready" {
+        bail!(
+            "the bridge did not start; see {}",
+            out.join("bridge.log").display()
+        );
+    }
+    let net = NetBus::open(NetBus::config("peer", &[], &[endpoint])?, "demo")?;
+    let mut images = net.slice_subscriber(&topics::camera_image("front"))?;
+    let mut health = net.subscriber(&topics::health("camera-ingest"))?;
+    let mut info = net.subscriber(&topics::camera_info("front"))?;
+    std::thread::sleep(Duration::from_millis(500));
+    let started = Instant::now();
+    let ingest = start(
+        "camera-ingest",
+        &ingest_cfg,
+        &prefix,
+        &out.join("camera-ingest.log"),
+    )?;
+
+    let expected = a.loops as u64 * std::fs::read_dir(&frames)?.count() as u64;
+    let (mut received, mut bytes, mut last_health, mut camera) = (0u64, 0usize, None, None);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while received < expected && Instant::now() < deadline {
+        if let Some(h) = health.latest()? {
+            last_health = Some(h);
+        }
+        if let Some(i) = info.latest()? {
+            camera = Some(i);
+        }
+        let Some((h, data)) = images.recv_timeout(Duration::from_millis(200))? else {
+            if last_health.is_some_and(|h: farsight_interfaces::msg::StageHealth| {
+                h.state == HealthState::STOPPING
+            }) {
+                break;
+            }
+            continue;
+        };
+        if h.encoding != PixelEncoding::PNG {
+            bail!("expected PNG frames from the bridge, got {}", h.encoding);
+        }
+        received += 1;
+        bytes += data.len();
+        let name = out
+            .join("frames")
+            .join(format!("{:04}.png", h.stamp.frame_seq));
+        std::fs::write(&name, &data)?;
+        print!(
+            "\r  frame {:>3}/{expected}  {}x{} png {:>4} kB  capture {} ms",
+            h.stamp.frame_seq,
+            h.width,
+            h.height,
+            data.len() / 1024,
+            h.stamp.capture_time_ns / 1_000_000
+        );
+        std::io::stdout().flush().ok();
+    }
+    println!();
+    let elapsed = started.elapsed().as_secs_f64();
+    drop(ingest);
+    std::thread::sleep(Duration::from_millis(300));
+    if let Some(h) = health.latest()? {
+        last_health = Some(h);
+    }
+    drop(bridge);
+
+    let mut summary = String::new();
+    summary += &format!(
+        "received {received} of {expected} frames over zenoh in {elapsed:.1} s ({:.1} frames/s)\n",
+        received as f64 / elapsed
+    );
+    summary += &format!(
+        "mean PNG size {} kB (frames downsampled 2x by the bridge)\n",
+        bytes / received.max(1) as usize / 1024
+    );
+    if let Some(c) = camera {
+        summary += &format!(
+            "camera '{}' {}x{} fx {:.2} fy {:.2} cx {:.2} cy {:.2}\n",
+            c.name, c.width, c.height, c.fx, c.fy, c.cx, c.cy
+        );
+    }
+    if let Some(h) = last_health {
+        summary += &format!(
+            "camera-ingest health: {} in={} out={} dropped={}\n",
+            h.state, h.messages_in, h.messages_out, h.dropped
+        );
+    }
+    summary += &format!("frames written to {}\n", out.join("frames").display());
+    std::fs::write(out.join("summary.txt"), &summary)?;
+    println!("\n{summary}");
+    if received == 0 {
+        bail!("no frames arrived; logs are in {}", out.display());
+    }
+    Ok(())
+}
