@@ -204,7 +204,10 @@ fn send_cell(kind: Kind, size: usize, count: usize) -> Result<(f64, f64, usize)>
                 .local_addr()?
                 .port();
             let endpoint = format!("tcp/127.0.0.1:{port}");
-            let net = NetBus::open(NetBus::config("peer", &[endpoint.clone()], &[])?, "bench")?;
+            let net = NetBus::open(
+                NetBus::config("peer", std::slice::from_ref(&endpoint), &[])?,
+                "bench",
+            )?;
             let publisher = net.bytes_publisher("bench/transport", false)?;
             let mut rx = Receiver::start(kind, size, count, &endpoint)?;
             rx.wait_ready()?;
@@ -351,7 +354,10 @@ fn receiver(a: ReceiverArgs) -> Result<()> {
             }
         }
         Kind::Zenoh => {
-            let net = NetBus::open(NetBus::config("peer", &[], &[a.endpoint.clone()])?, "bench")?;
+            let net = NetBus::open(
+                NetBus::config("peer", &[], std::slice::from_ref(&a.endpoint))?,
+                "bench",
+            )?;
             let sub = net.bytes_subscriber("bench/transport")?;
             out("ready");
             let mut first = true;

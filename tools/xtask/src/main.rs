@@ -59,7 +59,11 @@ fn cache_dir() -> PathBuf {
 }
 
 fn run(cmd: &mut Command) -> Result<()> {
-    let shown = format!("{cmd:?}");
+    let shown = std::iter::once(cmd.get_program())
+        .chain(cmd.get_args())
+        .map(|a| a.to_string_lossy().into_owned())
+        .collect::<Vec<_>>()
+        .join(" ");
     eprintln!("xtask: running {shown}");
     let status = cmd.status().map_err(|e| format!("{shown}: {e}"))?;
     if status.success() {
