@@ -111,6 +111,15 @@ pub fn parse_config<T: DeserializeOwned + Validate>(
     Ok(config)
 }
 
+/// Loads and validates a config file that must exist.
+pub fn load_config_file<T: DeserializeOwned + Validate>(path: &Path) -> Result<T, ConfigError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    parse_config(&text, &path.display().to_string())
+}
+
 /// Loads and validates a config file; with no path, the documented defaults
 /// (`T::default()`), still validated.
 pub fn load_config<T: DeserializeOwned + Validate + Default>(
@@ -122,13 +131,7 @@ pub fn load_config<T: DeserializeOwned + Validate + Default>(
             config.validate()?;
             Ok(config)
         }
-        Some(p) => {
-            let text = std::fs::read_to_string(p).map_err(|source| ConfigError::Io {
-                path: p.display().to_string(),
-                source,
-            })?;
-            parse_config(&text, &p.display().to_string())
-        }
+        Some(p) => load_config_file(p),
     }
 }
 

@@ -1,0 +1,316 @@
+//! ONNX Runtime backend: the runtime library is loaded dynamically (path from
+//! `ORT_DYLIB_PATH`, which `cargo xtask setup` provides), the model's real input
+//! and output shapes are checked against its config at load, and a mismatch is
+//! refused with both shapes in the message.
+
+use crate::model_config::{ExecutionProvider, Layout, ModelConfig, OutputKind, OutputSpec};
+use crate::preprocess::{PreprocessError, Preprocessor};
+use farsight_interfaces::msg::ImageHeader;
+use ort::session::Session;
+use ort::value::{TensorRef, ValueType};
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+use std::time::Instant;
+
+/// A model that cannot be loaded or does not match its config.
+#[derive(Debug, thiserror::Error)]
+pub enum LoadError {
+    #[error("ONNX Runtime library not found: set ORT_DYLIB_PATH (`cargo xtask setup` fetches the library and prints its path)")]
+    NoRuntimePath,
+    #[error("loading ONNX Runtime from {path}: {detail}")]
+    Runtime { path: String, detail: String },
+    #[error("model file {0} does not exist")]
+    MissingModel(String),
+    #[error("loading model {path}: {detail}")]
+    Session { path: String, detail: String },
+    #[error("execution provider {provider:?} is not available in this ONNX Runtime ({detail}); use a build with it (e.g. the onnxruntime-gpu wheel) or execution_provider = \"cpu\"")]
+    Provider {
+        provider: ExecutionProvider,
+        detail: String,
+    },
+    #[error("model {path} has no {what} named '{name}' (it has {available:?})")]
+    NoSuchTensor {
+        path: String,
+        what: &'static str,
+        name: String,
+        available: Vec<String>,
+    },
+    #[error(
+        "model {what} '{name}' has shape {model:?} but the model config says {config} ({hint})"
+    )]
+    ShapeMismatch {
+        what: &'static str,
+        name: String,
+        model: Vec<i64>,
+        config: String,
+        hint: String,
+    },
+    #[error("model {what} '{name}' is {ty}, farsight feeds and reads float32 tensors")]
+    NotFloat {
+        what: &'static str,
+        name: String,
+        ty: String,
+    },
+}
+
+/// A frame that could not be run through the model.
+#[derive(Debug, thiserror::Error)]
+pub enum InferError {
+    #[error(transparent)]
+    Preprocess(#[from] PreprocessError),
+    #[error("onnx runtime: {0}")]
+    Run(String),
+}
+
+static RUNTIME: OnceLock<Result<ort::environment::Environment, String>> = OnceLock::new();
+
+/// The process's ONNX Runtime, loaded once from `lib` or `ORT_DYLIB_PATH`.
+pub fn runtime(lib: Option<&Path>) -> Result<&'static ort::environment::Environment, LoadError> {
+    let path: PathBuf = match lib {
+        Some(p) => p.to_path_buf(),
+        None => std::env::var_os("ORT_DYLIB_PATH")
+            .filter(|p| !p.is_empty())
+            .map(PathBuf::from)
+            .ok_or(LoadError::NoRuntimePath)?,
+    };
+    let env = RUNTIME.get_or_init(|| {
+        if !path.exists() {
+            return Err(format!("{} does not exist", path.display()));
+        }
+        ort::init_from(&path)
+            .map_err(|e| e.to_string())?
+            .with_name("farsight")
+            .build()
+            .map_err(|e| e.to_string())
+    });
+    env.as_ref().map_err(|detail| LoadError::Runtime {
+        path: path.display().to_string(),
+        detail: detail.clone(),
+    })
+}
+
+/// Per-frame timings of the three phases, seconds.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Timings {
+    pub preprocess_s: f64,
+    pub inference_s: f64,
+    pub postprocess_s: f64,
+}
+
+/// A loaded model with its config and reusable input buffer.
+pub struct OnnxModel {
+    session: Session,
+    config: ModelConfig,
+    pre: Option<Preprocessor>,
+    input: Vec<f32>,
+}
+
+fn float_tensor_shape<'a>(
+    what: &'static str,
+    name: &str,
+    ty: &'a ValueType,
+) -> Result<&'a [i64], LoadError> {
+    match ty {
+        ValueType::Tensor {
+            ty: ort::value::TensorElementType::Float32,
+            shape,
+            ..
+        } => Ok(shape),
+        other => Err(LoadError::NotFloat {
+            what,
+            name: name.to_string(),
+            ty: format!("{other:?}"),
+        }),
+    }
+}
+
+/// `true` if a model dimension (-1 = dynamic) accepts `want`.
+fn dim_ok(model: i64, want: i64) -> bool {
+    model < 0 || model == want
+}
+
+/// Checks an output's rank and channel count against its config.
+fn check_output(spec: &OutputSpec, shape: &[i64]) -> Result<(), LoadError> {
+    let mismatch = |config: String, hint: &str| LoadError::ShapeMismatch {
+        what: "output",
+        name: spec.name.clone(),
+        model: shape.to_vec(),
+        config,
+        hint: hint.to_string(),
+    };
+    match spec.kind {
+        OutputKind::FarFieldEnsemble => {
+            let want = spec.ensemble_shape.unwrap_or_default().map(|d| d as i64);
+            let core = match shape {
+                [1, rest @ ..] if rest.len() == 4 => rest,
+                s => s,
+            };
+            if core.len() != 4 || core.iter().zip(want).any(|(&m, w)| !dim_ok(m, w)) {
+                return Err(mismatch(
+                    format!("{want:?}"),
+                    "ensemble_shape = [slices, radial_bins, members, classes]",
+                ));
+            }
+        }
+        _ => {
+            let c = spec.classes as i64;
+            let ok = match (shape.len(), spec.layout) {
+                (4, Layout::Nchw) => dim_ok(shape[0], 1) && dim_ok(shape[1], c),
+                (4, Layout::Nhwc) => dim_ok(shape[0], 1) && dim_ok(shape[3], c),
+                (3, _) => c == 1 && dim_ok(shape[0], 1),
+                _ => false,
+            };
+            if !ok {
+                let cfg = match spec.layout {
+                    Layout::Nchw => format!("[1, {c}, H, W]"),
+                    Layout::Nhwc => format!("[1, H, W, {c}]"),
+                };
+                return Err(mismatch(
+                    cfg,
+                    &format!("outputs.layout = {:?}, outputs.classes = {c}", spec.layout),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+impl OnnxModel {
+    /// Loads the model of `config`, checking it against the config.
+    pub fn load(config: &ModelConfig) -> Result<Self, LoadError> {
+        let path = config.model_path();
+        if !path.exists() {
+            return Err(LoadError::MissingModel(path.display().to_string()));
+        }
+        let env = runtime(None)?;
+        let shown = path.display().to_string();
+        let session_err = |detail: String| LoadError::Session {
+            path: shown.clone(),
+            detail,
+        };
+        let mut builder = Session::builder(env).map_err(|e| session_err(e.to_string()))?;
+        if config.threads > 0 {
+            builder = builder
+                .with_intra_threads(config.threads)
+                .map_err(|e| session_err(e.to_string()))?;
+        }
+        let providers = match config.execution_provider {
+            ExecutionProvider::Cpu => vec![],
+            ExecutionProvider::Cuda => vec![ort::ep::CUDA::default().build().error_on_failure()],
+            ExecutionProvider::Tensorrt => vec![
+                ort::ep::TensorRT::default().build().error_on_failure(),
+                ort::ep::CUDA::default().build().error_on_failure(),
+            ],
+        };
+        if !providers.is_empty() {
+            builder =
+                builder
+                    .with_execution_providers(providers)
+                    .map_err(|e| LoadError::Provider {
+                        provider: config.execution_provider,
+                        detail: e.to_string(),
+                    })?;
+        }
+        let session = builder
+            .commit_from_file(&path)
+            .map_err(|e| session_err(e.to_string()))?;
+
+        let input = session
+            .inputs()
+            .iter()
+            .find(|i| i.name() == config.input.name)
+            .ok_or_else(|| LoadError::NoSuchTensor {
+                path: shown.clone(),
+                what: "input",
+                name: config.input.name.clone(),
+                available: session
+                    .inputs()
+                    .iter()
+                    .map(|i| i.name().to_string())
+                    .collect(),
+            })?;
+        let model_shape = float_tensor_shape("input", input.name(), input.dtype())?;
+        let want = config.input_shape();
+        if model_shape.len() != 4 || model_shape.iter().zip(want).any(|(&m, w)| !dim_ok(m, w)) {
+            return Err(LoadError::ShapeMismatch {
+                what: "input",
+                name: config.input.name.clone(),
+                model: model_shape.to_vec(),
+                config: format!("{want:?}"),
+                hint: format!(
+                    "input.layout = {:?}, input.width = {}, input.height = {}",
+                    config.input.layout, config.input.width, config.input.height
+                ),
+            });
+        }
+        for spec in &config.outputs {
+            let out = session
+                .outputs()
+                .iter()
+                .find(|o| o.name() == spec.name)
+                .ok_or_else(|| LoadError::NoSuchTensor {
+                    path: shown.clone(),
+                    what: "output",
+                    name: spec.name.clone(),
+                    available: session
+                        .outputs()
+                        .iter()
+                        .map(|o| o.name().to_string())
+                        .collect(),
+                })?;
+            check_output(spec, float_tensor_shape("output", out.name(), out.dtype())?)?;
+        }
+        let len = want.iter().product::<i64>() as usize;
+        Ok(Self {
+            session,
+            config: config.clone(),
+            pre: None,
+            input: vec![0.0; len],
+        })
+    }
+
+    pub fn config(&self) -> &ModelConfig {
+        &self.config
+    }
+
+    /// Runs one frame; returns each configured output's shape and values.
+    pub fn run(
+        &mut self,
+        header: &ImageHeader,
+        frame: &[u8],
+        timings: &mut Timings,
+    ) -> Result<Vec<(OutputSpec, Vec<usize>, Vec<f32>)>, InferError> {
+        let t0 = Instant::now();
+        let pre = self.pre.get_or_insert_with(|| {
+            Preprocessor::new(&self.config.input, header.width, header.height)
+        });
+        pre.run(header, frame, &mut self.input)?;
+        let t1 = Instant::now();
+        let shape = self.config.input_shape().map(|d| d as usize);
+        let tensor = TensorRef::from_array_view((shape, self.input.as_slice()))
+            .map_err(|e| InferError::Run(e.to_string()))?;
+        let outputs = self
+            .session
+            .run(ort::inputs![self.config.input.name.as_str() => tensor])
+            .map_err(|e| InferError::Run(e.to_string()))?;
+        let t2 = Instant::now();
+        let mut result = Vec::with_capacity(self.config.outputs.len());
+        for spec in &self.config.outputs {
+            let value = outputs.get(spec.name.as_str()).ok_or_else(|| {
+                InferError::Run(format!("output '{}' missing from the result", spec.name))
+            })?;
+            let (s, data) = value
+                .try_extract_tensor::<f32>()
+                .map_err(|e| InferError::Run(format!("output '{}': {e}", spec.name)))?;
+            result.push((
+                spec.clone(),
+                s.iter().map(|&d| d.max(0) as usize).collect(),
+                data.to_vec(),
+            ));
+        }
+        timings.preprocess_s = (t1 - t0).as_secs_f64();
+        timings.inference_s = (t2 - t1).as_secs_f64();
+        timings.postprocess_s = t2.elapsed().as_secs_f64();
+        Ok(result)
+    }
+}
