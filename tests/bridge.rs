@@ -4,7 +4,6 @@
 
 use farsight_interfaces::msg::GoalKind;
 use farsight_interfaces::topics;
-use farsight_interfaces::transport::ipc::{Bus, IpcSettings};
 use farsight_tests::{free_port, Namespace, Proc};
 use std::time::{Duration, Instant};
 
@@ -96,14 +95,7 @@ fn pose_and_goal_published_on_zenoh_arrive_in_iceoryx2() {
     let ns = Namespace::new("bridgeimport");
     let port = free_port();
     let _bridge = start_bridge(&ns, port);
-    let bus = Bus::open_with(
-        "bridge-test",
-        &IpcSettings {
-            prefix: Some(ns.prefix.clone()),
-            root: Some(format!("{}/", ns.root.display())),
-        },
-    )
-    .unwrap();
+    let bus = ns.bus("bridge-test");
     let pose = bus.subscriber(&topics::pose()).unwrap();
     let goal = bus.subscriber(&topics::goal()).unwrap();
     let endpoint = format!("tcp/127.0.0.1:{port}");

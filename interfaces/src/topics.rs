@@ -139,6 +139,10 @@ pub fn camera_info(camera: &str) -> Topic<CameraInfo> {
 pub fn class_map(camera: &str) -> ImageTopic {
     Topic::known(format!("perception/{camera}/classes"))
 }
+/// Confidence of the class map (f32, probability of the chosen class).
+pub fn class_confidence(camera: &str) -> ImageTopic {
+    Topic::known(format!("perception/{camera}/confidence"))
+}
 /// Navigability image (mono8, 255 = navigable), POVNav's input.
 pub fn navigability(camera: &str) -> ImageTopic {
     Topic::known(format!("perception/{camera}/navigability"))
@@ -212,7 +216,9 @@ pub fn kind_of(topic: &str) -> Option<TopicKind> {
     Some(match parts.as_slice() {
         ["camera", _, "image"] => TopicKind::Image,
         ["camera", _, "info"] => TopicKind::CameraInfo,
-        ["perception", _, "classes" | "navigability" | "heatmap"] => TopicKind::Image,
+        ["perception", _, "classes" | "confidence" | "navigability" | "heatmap"] => {
+            TopicKind::Image
+        }
         ["perception", _, "far_field"] => TopicKind::Tensor,
         ["bins", "angular"] => TopicKind::AngularBins,
         ["bins", "polar"] => TopicKind::PolarBins,
@@ -251,6 +257,7 @@ mod tests {
             camera_image("a").name().to_string(),
             camera_info("a").name().to_string(),
             class_map("a").name().to_string(),
+            class_confidence("a").name().to_string(),
             navigability("a").name().to_string(),
             affordance_heatmap("a").name().to_string(),
             far_field_logits("a").name().to_string(),

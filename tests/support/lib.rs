@@ -61,6 +61,48 @@ impl Namespace {
         ]
     }
 
+    /// Opens a bus in this namespace from the test process itself.
+    pub fn bus(&self, name: &str) -> farsight_interfaces::transport::ipc::Bus {
+        farsight_interfaces::transport::ipc::Bus::open_with(
+            name,
+            &farsight_interfaces::transport::ipc::IpcSettings {
+                prefix: Some(self.prefix.clone()),
+                root: Some(format!("{}/", self.root.display())),
+            },
+        )
+        .expect("test bus")
+    }
+
+    /// Writes a file into the namespace's directory and returns its path.
+    pub fn write(&self, name: &str, text: &str) -> PathBuf {
+        let p = self.root.join(name);
+        std::fs::write(&p, text).expect("write test file");
+        p
+    }
+
+    /// `Proc::start` that waits for the stage's `<name> ready` line.
+    pub fn start_stage(&self, binary: &str, stage: &str, config: &std::path::Path) -> Proc {
+        let p = Proc::start(
+            binary,
+            &["--config", config.to_str().expect("utf-8 path")],
+            self,
+        );
+        let ready = format!("{stage} ready");
+        p.wait_line(Duration::from_secs(30), |l| l == ready)
+            .unwrap_or_else(|| panic!("{binary} did not get ready:\n{}", p.stderr_so_far()));
+        p
+    }
+}
+
+/// The repository root (tests read ../shared relative to it).
+pub fn repo_root() -> PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("tests/ is inside the repository")
+        .to_path_buf()
+}
+
+impl Namespace {
     /// Applies this namespace to the current (test) process.
     pub fn enter(&self) {
         for (k, v) in self.env() {

@@ -8,7 +8,6 @@ use farsight_interfaces::msg::HealthState;
 use farsight_interfaces::transport::ipc::{self, Bus, LoopExit, Wake};
 use farsight_interfaces::transport::net::NetBus;
 use farsight_stage::{load_config, Health, StageArgs};
-use std::io::Write;
 use std::ops::ControlFlow;
 use std::time::Duration;
 use zenoh::Wait;
@@ -55,10 +54,9 @@ fn run() -> Result<()> {
         robot = %config.robot,
         exports = ?exports.iter().map(Export::topic).collect::<Vec<_>>(),
         imports = ?imports.iter().map(Import::topic).collect::<Vec<_>>(),
-        "bridge ready"
+        "bridge config"
     );
-    println!("bridge ready");
-    std::io::stdout().flush().ok();
+    farsight_stage::announce_ready(STAGE);
 
     let listeners: Vec<_> = exports.iter().map(Export::listener).collect();
     let tick = Duration::from_secs_f64(1.0 / config.import_poll_hz);

@@ -41,7 +41,8 @@ fn run() -> Result<()> {
     let info = bus.publisher(&topics::camera_info(&camera.name))?;
     let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
     health.set(HealthState::OK, "");
-    tracing::info!(folder = %folder.display(), frames = files.len(), camera = %camera.name, "camera-ingest ready");
+    tracing::info!(folder = %folder.display(), frames = files.len(), camera = %camera.name, "camera-ingest config");
+    farsight_stage::announce_ready(STAGE);
 
     let clock = WallClock;
     let (mut index, mut pass, mut seq) = (0usize, 0u32, 0u64);

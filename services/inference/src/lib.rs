@@ -19,6 +19,7 @@ pub mod model_config;
 pub mod onnx;
 pub mod postprocess;
 pub mod preprocess;
+pub mod stage;
 
 use class_table::ClassTable;
 use farsight_interfaces::msg::ImageHeader;

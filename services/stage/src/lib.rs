@@ -239,6 +239,16 @@ pub fn init_tracing(format: LogFormat) {
     };
 }
 
+/// Tells launchers and tests the stage is set up: prints `<stage> ready` on
+/// stdout (logs go to stderr) and logs it.
+pub fn announce_ready(stage: &str) {
+    use std::io::Write;
+    tracing::info!("{stage} ready");
+    let mut out = std::io::stdout();
+    let _ = writeln!(out, "{stage} ready");
+    let _ = out.flush();
+}
+
 /// A stage's health report, published on `health/<stage>` at a fixed rate.
 pub struct Health {
     publisher: Publisher<StageHealth>,

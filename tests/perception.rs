@@ -1,0 +1,82 @@
+//! Real frames through the real perception stages: camera-ingest plays the ORFD
+//! off-road frames into shared memory, the inference stage runs TwinLiteNet on
+//! them, and the navigability images it publishes mark the road ahead drivable
+//! and the sky not.
+
+use farsight_interfaces::msg::PixelEncoding;
+use farsight_interfaces::topics;
+use farsight_tests::{repo_root, Namespace};
+use std::time::{Duration, Instant};
+
+#[test]
+fn twinlitenet_stage_marks_the_orfd_road_navigable() {
+    let ns = Namespace::new("perception");
+    let root = repo_root();
+    let inference_cfg = ns.write(
+        "inference.toml",
+        &format!(
+            "camera = \"front\"\nmodel_config = {:?}\n",
+            root.join("deploy/models/twinlitenet.toml")
+                .display()
+                .to_string()
+        ),
+    );
+    let ingest_cfg = ns.write(
+        "camera-ingest.toml",
+        &format!(
+            "folder = {:?}\nrate_hz = 3.0\nloops = 1\n[camera]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\n",
+            root.join("../shared/data/orfd/image_data").display().to_string()
+        ),
+    );
+    let bus = ns.bus("perception-test");
+    let nav = bus
+        .slice_subscriber(&topics::navigability("front"))
+        .unwrap();
+    let health = bus.subscriber(&topics::health("inference")).unwrap();
+    let _inference = ns.start_stage("farsight-inference", "inference", &inference_cfg);
+    let _ingest = ns.start_stage("farsight-camera-ingest", "camera-ingest", &ingest_cfg);
+
+    let mut seen = Vec::new();
+    let end = Instant::now() + Duration::from_secs(30);
+    while seen.len() < 4 && Instant::now() < end {
+        if let Some(s) = nav.latest().unwrap() {
+            let h = *s.header();
+            assert_eq!(h.encoding, PixelEncoding::MONO8);
+            h.validate(s.data().len()).unwrap();
+            let (w, hgt) = (h.width as usize, h.height as usize);
+            let frac = |x0: f64, x1: f64, y0: f64, y1: f64| {
+                let mut n = 0;
+                let mut t = 0;
+                for y in (y0 * hgt as f64) as usize..(y1 * hgt as f64) as usize {
+                    for x in (x0 * w as f64) as usize..(x1 * w as f64) as usize {
+                        t += 1;
+                        n += (s.data()[y * w + x] == 255) as usize;
+                    }
+                }
+                n as f64 / t as f64
+            };
+            let road = frac(0.25, 0.45, 0.80, 0.97);
+            let sky = frac(0.0, 1.0, 0.0, 0.12);
+            assert!(
+                road > 0.8 && sky < 0.02,
+                "frame {}: road {road:.2}, sky {sky:.2}",
+                h.stamp.frame_seq
+            );
+            // The mask carries the stamp of the camera frame it came from.
+            assert!((1..=6).contains(&h.stamp.frame_seq));
+            assert!(h.stamp.capture_time_ns / 1_000_000 >= 1_623_721_491_895);
+            seen.push(h.stamp.frame_seq);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(
+        seen.len() >= 4,
+        "only {} navigability images arrived: {seen:?}",
+        seen.len()
+    );
+    assert!(seen.windows(2).all(|w| w[0] < w[1]), "{seen:?}");
+    std::thread::sleep(Duration::from_millis(1200));
+    let h = health.latest().unwrap().expect("inference health");
+    assert_eq!(h.dropped, 0, "{h:?}");
+    assert!(h.messages_out >= 4, "{h:?}");
+}
