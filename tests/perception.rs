@@ -80,3 +80,67 @@ fn twinlitenet_stage_marks_the_orfd_road_navigable() {
     assert_eq!(h.dropped, 0, "{h:?}");
     assert!(h.messages_out >= 4, "{h:?}");
 }
+
+#[test]
+fn farsight_infer_writes_masks_and_overlays_a_person_can_check() {
+    let ns = Namespace::new("infercli");
+    let root = repo_root();
+    let out = ns.root.join("infer");
+    let frames = root.join("../shared/data/orfd/image_data");
+    let first = std::fs::read_dir(&frames)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .min()
+        .unwrap();
+    // One good image, one truncated copy: the broken one is reported and skipped.
+    let broken = ns.root.join("broken.png");
+    let bytes = std::fs::read(&first).unwrap();
+    std::fs::write(&broken, &bytes[..bytes.len() / 3]).unwrap();
+    let mut p = farsight_tests::Proc::start(
+        "farsight",
+        &[
+            "infer",
+            "--model-config",
+            root.join("deploy/models/twinlitenet.toml")
+                .to_str()
+                .unwrap(),
+            first.to_str().unwrap(),
+            broken.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &ns,
+    );
+    assert_eq!(
+        p.wait_exit(Duration::from_secs(60)),
+        Some(0),
+        "{}",
+        p.stderr_so_far()
+    );
+    assert!(
+        p.stderr_so_far().contains("broken.png: skipped"),
+        "{}",
+        p.stderr_so_far()
+    );
+    let stem = first.file_stem().unwrap().to_str().unwrap();
+    let (h, mask) = farsight_imaging::decode_png(
+        &std::fs::read(out.join(format!("{stem}.navigability.png"))).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        (h.width, h.height, h.encoding),
+        (640, 360, PixelEncoding::MONO8)
+    );
+    assert!(mask.iter().all(|&v| v == 0 || v == 255));
+    let (oh, _) = farsight_imaging::decode_png(
+        &std::fs::read(out.join(format!("{stem}.overlay.png"))).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        (oh.width, oh.height),
+        (1280, 720),
+        "the overlay is at frame resolution"
+    );
+    assert!(out.join(format!("{stem}.classes.png")).exists());
+}

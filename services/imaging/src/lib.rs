@@ -222,6 +222,60 @@ pub fn decode_png(bytes: &[u8]) -> Result<(ImageHeader, Vec<u8>), ImageError> {
     Ok((header, buf))
 }
 
+/// A distinct colour for class `id` (class maps in overlays and snapshots).
+pub fn class_color(id: u8) -> [u8; 3] {
+    const PALETTE: [[u8; 3]; 8] = [
+        [60, 60, 60],
+        [46, 204, 64],
+        [255, 65, 54],
+        [0, 116, 217],
+        [255, 220, 0],
+        [177, 13, 201],
+        [57, 204, 204],
+        [255, 133, 27],
+    ];
+    let base = PALETTE[id as usize % PALETTE.len()];
+    // Past the palette, vary brightness so neighbouring ids stay distinguishable.
+    let k = 1.0 - 0.25 * ((id as usize / PALETTE.len()) % 3) as f32;
+    base.map(|c| (c as f32 * k) as u8)
+}
+
+/// Blends per-pixel colours over a packed RGB8 frame. `colors` is a
+/// `cw` x `ch` image covering the whole frame (e.g. a model output); each frame
+/// pixel takes its nearest entry. `None` leaves the pixel as it is.
+pub fn overlay(
+    frame: &[u8],
+    fw: usize,
+    fh: usize,
+    cw: usize,
+    ch: usize,
+    alpha: f32,
+    color_at: impl Fn(usize) -> Option<[u8; 3]>,
+) -> Vec<u8> {
+    let mut out = frame.to_vec();
+    for y in 0..fh {
+        let cy = (y * ch / fh.max(1)).min(ch.saturating_sub(1));
+        for x in 0..fw {
+            let cx = (x * cw / fw.max(1)).min(cw.saturating_sub(1));
+            if let Some(c) = color_at(cy * cw + cx) {
+                let px = &mut out[(y * fw + x) * 3..(y * fw + x) * 3 + 3];
+                for k in 0..3 {
+                    px[k] = (px[k] as f32 * (1.0 - alpha) + c[k] as f32 * alpha) as u8;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Scales values in [0, 1] to a 16-bit grey image (heatmaps as PNG).
+pub fn unit_to_mono16(values: &[f32]) -> Vec<u8> {
+    values
+        .iter()
+        .flat_map(|v| ((v.clamp(0.0, 1.0) * 65535.0).round() as u16).to_le_bytes())
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -264,6 +318,21 @@ mod tests {
         let md = [0x34, 0x12, 0xff, 0xee];
         let (_, back) = decode_png(&encode_png(&m, &md).unwrap()).unwrap();
         assert_eq!(back, md);
+    }
+
+    #[test]
+    fn overlay_blends_the_nearest_entry() {
+        // 4x2 grey frame, 2x1 colour map: left half red, right half untouched.
+        let frame = vec![100u8; 4 * 2 * 3];
+        let out = overlay(&frame, 4, 2, 2, 1, 0.5, |i| (i == 0).then_some([200, 0, 0]));
+        assert_eq!(&out[..3], &[150, 50, 50]);
+        assert_eq!(&out[3 * 3..3 * 3 + 3], &[100, 100, 100]);
+        assert_eq!(&out[(4 + 1) * 3..(4 + 1) * 3 + 3], &[150, 50, 50]);
+        assert_ne!(class_color(1), class_color(9));
+        assert_eq!(
+            unit_to_mono16(&[0.0, 1.0, 2.0]),
+            vec![0, 0, 255, 255, 255, 255]
+        );
     }
 
     #[test]

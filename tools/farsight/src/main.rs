@@ -5,10 +5,12 @@
 //! farsight probe subscribe --frames 90                              # receive and check every byte
 //! farsight bench transport                                           # iceoryx2 vs zenoh vs Unix socket
 //! farsight demo                                                      # the graph on real frames
+//! farsight infer --model-config deploy/models/twinlitenet.toml IMAGES --out out/infer
 //! ```
 
 mod bench;
 mod demo;
+mod infer;
 mod probe;
 
 use clap::{Parser, Subcommand};
@@ -34,6 +36,8 @@ enum Command {
     Bench(bench::BenchCommand),
     /// Run the graph on the real ORFD frames and watch it over zenoh.
     Demo(demo::DemoArgs),
+    /// Run a model on image files offline, as the inference stage would, and write PNGs.
+    Infer(infer::InferArgs),
 }
 
 fn main() {
@@ -43,6 +47,7 @@ fn main() {
         Command::Probe(c) => probe::run(c),
         Command::Bench(c) => bench::run(c),
         Command::Demo(a) => demo::run(a),
+        Command::Infer(a) => infer::run(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");
