@@ -15,7 +15,9 @@
 //! [`Backend::run`], so a model checked offline behaves the same on the robot.
 
 pub mod class_table;
+pub mod hsv;
 pub mod model_config;
+pub mod normals;
 pub mod onnx;
 pub mod postprocess;
 pub mod preprocess;
