@@ -125,8 +125,8 @@ impl Bus {
 
     /// Opens the bus, removing what dead processes left behind first.
     pub fn open_with(node_name: &str, settings: &IpcSettings) -> Result<Self, TransportError> {
-        // iceoryx2 logs to the console at info level; keep that for IOX2_LOG_LEVEL users.
-        set_log_level_from_env_or(LogLevel::Warn);
+        // iceoryx2 logs to the console; by default only its errors (IOX2_LOG_LEVEL overrides).
+        set_log_level_from_env_or(LogLevel::Error);
         let config = settings.config()?;
         let name = NodeName::new(node_name).map_err(|e| ipc_err("node name", node_name, e))?;
         let node = NodeBuilder::new()

@@ -68,7 +68,7 @@ impl Perception {
     /// Turns raw model outputs into a perception result; the class table maps
     /// class ids to navigability when the model gives classes.
     pub fn from_outputs(
-        outputs: &[(model_config::OutputSpec, Vec<usize>, Vec<f32>)],
+        outputs: &[(&model_config::OutputSpec, Vec<usize>, &[f32])],
         table: Option<&ClassTable>,
     ) -> Result<Self, FrameError> {
         let mut p = Perception::default();
@@ -94,7 +94,7 @@ impl Perception {
                 }
                 OutputKind::FarFieldEnsemble => {
                     let s = postprocess::far_field(spec, shape, data)?;
-                    p.far_field = Some((s, data.clone()));
+                    p.far_field = Some((s, data.to_vec()));
                 }
             }
         }
@@ -117,13 +117,9 @@ impl Backend {
         timings: &mut Timings,
     ) -> Result<Perception, FrameError> {
         match self {
-            Backend::Onnx(model) => {
-                let outputs = model.run(header, frame, timings)?;
-                let t = std::time::Instant::now();
-                let p = Perception::from_outputs(&outputs, table)?;
-                timings.postprocess_s += t.elapsed().as_secs_f64();
-                Ok(p)
-            }
+            Backend::Onnx(model) => model.run(header, frame, timings, |outputs| {
+                Perception::from_outputs(outputs, table)
+            })?,
         }
     }
 }

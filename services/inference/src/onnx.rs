@@ -273,13 +273,15 @@ impl OnnxModel {
         &self.config
     }
 
-    /// Runs one frame; returns each configured output's shape and values.
-    pub fn run(
+    /// Runs one frame and hands each configured output's spec, shape and values
+    /// to `post`, read in place from ONNX Runtime's buffers.
+    pub fn run<R>(
         &mut self,
         header: &ImageHeader,
         frame: &[u8],
         timings: &mut Timings,
-    ) -> Result<Vec<(OutputSpec, Vec<usize>, Vec<f32>)>, InferError> {
+        post: impl FnOnce(&[(&OutputSpec, Vec<usize>, &[f32])]) -> R,
+    ) -> Result<R, InferError> {
         let t0 = Instant::now();
         let pre = self.pre.get_or_insert_with(|| {
             Preprocessor::new(&self.config.input, header.width, header.height)
@@ -294,7 +296,7 @@ impl OnnxModel {
             .run(ort::inputs![self.config.input.name.as_str() => tensor])
             .map_err(|e| InferError::Run(e.to_string()))?;
         let t2 = Instant::now();
-        let mut result = Vec::with_capacity(self.config.outputs.len());
+        let mut views = Vec::with_capacity(self.config.outputs.len());
         for spec in &self.config.outputs {
             let value = outputs.get(spec.name.as_str()).ok_or_else(|| {
                 InferError::Run(format!("output '{}' missing from the result", spec.name))
@@ -302,12 +304,13 @@ impl OnnxModel {
             let (s, data) = value
                 .try_extract_tensor::<f32>()
                 .map_err(|e| InferError::Run(format!("output '{}': {e}", spec.name)))?;
-            result.push((
-                spec.clone(),
-                s.iter().map(|&d| d.max(0) as usize).collect(),
-                data.to_vec(),
+            views.push((
+                spec,
+                s.iter().map(|&d| d.max(0) as usize).collect::<Vec<_>>(),
+                data,
             ));
         }
+        let result = post(&views);
         timings.preprocess_s = (t1 - t0).as_secs_f64();
         timings.inference_s = (t2 - t1).as_secs_f64();
         timings.postprocess_s = t2.elapsed().as_secs_f64();

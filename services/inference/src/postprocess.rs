@@ -88,29 +88,57 @@ pub fn class_map(
     let (h, w, c) = image_dims(spec, shape)?;
     let plane = h * w;
     let mut ids = vec![0u8; plane];
-    let mut confidence = vec![0f32; plane];
-    let at = |p: usize, k: usize| match spec.layout {
-        Layout::Nchw => data[k * plane + p],
-        Layout::Nhwc => data[p * c + k],
-    };
-    for p in 0..plane {
-        let (mut best, mut best_v) = (0usize, at(p, 0));
-        for k in 1..c {
-            let v = at(p, k);
-            if v > best_v {
-                best = k;
-                best_v = v;
+    let logits = spec.kind == OutputKind::ClassLogits;
+    let confidence = match spec.layout {
+        // Plane by plane: contiguous, branch-light loops the compiler vectorises.
+        Layout::Nchw => {
+            let planes: Vec<&[f32]> = data.chunks_exact(plane).take(c).collect();
+            let mut best = planes[0].to_vec();
+            for (k, pk) in planes.iter().enumerate().skip(1) {
+                for ((b, id), &v) in best.iter_mut().zip(ids.iter_mut()).zip(pk.iter()) {
+                    if v > *b {
+                        *b = v;
+                        *id = k as u8;
+                    }
+                }
+            }
+            if !logits {
+                best
+            } else if c == 2 {
+                // Softmax of two logits: the winner's probability is sigmoid(|a - b|).
+                planes[0]
+                    .iter()
+                    .zip(planes[1])
+                    .map(|(&a, &b)| 1.0 / (1.0 + (-(a - b).abs()).exp()))
+                    .collect()
+            } else {
+                let mut sum = vec![0f32; plane];
+                for pk in &planes {
+                    for ((s, &v), &m) in sum.iter_mut().zip(pk.iter()).zip(&best) {
+                        *s += (v - m).exp();
+                    }
+                }
+                sum.iter().map(|s| 1.0 / s).collect()
             }
         }
-        ids[p] = best as u8;
-        confidence[p] = match spec.kind {
-            OutputKind::ClassLogits => {
-                let sum: f32 = (0..c).map(|k| (at(p, k) - best_v).exp()).sum();
-                1.0 / sum
-            }
-            _ => best_v,
-        };
-    }
+        Layout::Nhwc => data
+            .chunks_exact(c)
+            .zip(ids.iter_mut())
+            .map(|(px, id)| {
+                let (k, &m) =
+                    px.iter().enumerate().fold(
+                        (0, &px[0]),
+                        |acc, (k, v)| if *v > *acc.1 { (k, v) } else { acc },
+                    );
+                *id = k as u8;
+                if logits {
+                    1.0 / px.iter().map(|v| (v - m).exp()).sum::<f32>()
+                } else {
+                    m
+                }
+            })
+            .collect(),
+    };
     Ok(ClassMap {
         width: w,
         height: h,

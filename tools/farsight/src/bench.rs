@@ -25,6 +25,10 @@ use std::time::{Duration, Instant};
 pub enum BenchCommand {
     /// Latency table: iceoryx2 vs zenoh vs Unix socket, 64 B to 6 MB.
     Transport(TransportArgs),
+    /// Per-frame cost of pre-processing, inference and post-processing on the
+    /// ORFD frames, and the frame rate the inference stage sustains fed by
+    /// camera-ingest at full speed.
+    Inference(InferenceArgs),
     /// (internal) the receiving side of one cell of the transport benchmark.
     #[command(hide = true)]
     TransportReceiver(ReceiverArgs),
@@ -76,9 +80,24 @@ pub struct ReceiverArgs {
     endpoint: String,
 }
 
+#[derive(Args)]
+pub struct InferenceArgs {
+    #[arg(long, default_value = "deploy/models/twinlitenet.toml")]
+    pub model_config: std::path::PathBuf,
+    #[arg(long, default_value = "../shared/data/orfd/image_data")]
+    pub frames: std::path::PathBuf,
+    /// Timed runs (after 3 warm-up runs).
+    #[arg(long, default_value_t = 30)]
+    pub runs: usize,
+    /// Seconds of the stage throughput measurement (0 = skip it).
+    #[arg(long, default_value_t = 10.0)]
+    pub stage_seconds: f64,
+}
+
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Transport(a) => transport(a),
+        BenchCommand::Inference(a) => crate::bench_inference::run(a),
         BenchCommand::TransportReceiver(a) => receiver(a),
     }
 }

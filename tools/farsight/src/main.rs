@@ -9,6 +9,7 @@
 //! ```
 
 mod bench;
+mod bench_inference;
 mod demo;
 mod infer;
 mod probe;
