@@ -24,7 +24,7 @@ fn twinlitenet_stage_marks_the_orfd_road_navigable() {
     let ingest_cfg = ns.write(
         "camera-ingest.toml",
         &format!(
-            "folder = {:?}\nrate_hz = 3.0\nloops = 1\n[camera]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\n",
+            "[[cameras]]\nfolder = {:?}\nrate_hz = 3.0\nloops = 1\n[cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\n",
             root.join("../shared/data/orfd/image_data").display().to_string()
         ),
     );

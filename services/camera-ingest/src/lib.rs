@@ -1,19 +1,30 @@
 //! # farsight-camera-ingest
 //!
 //! Puts camera frames into the graph, with the camera model that goes with
-//! them. This version reads a folder of PNG images (sorted by name); file names
-//! that are Unix timestamps become capture times. A broken file is logged,
-//! counted and skipped; the stream goes on.
+//! them, for one or several cameras (front, rear, ...), each with its own mount
+//! and source:
+//!
+//! - `folder`: PNG/JPEG images sorted by name; names that are Unix timestamps
+//!   (ms or ns) become capture times; played at `rate_hz`, `loops` times;
+//! - `v4l2`: a V4L2 camera (`/dev/videoN`) delivering YUYV or MJPEG, converted to RGB.
+//!
+//! A broken file (truncated image, wrong size) is logged, counted and skipped;
+//! the stream goes on.
 //!
 //! Config (`camera-ingest.toml`, defaults shown):
 //!
 //! ```toml
-//! folder = "frames"          # relative to the config file
-//! rate_hz = 10.0             # frames per second
-//! loops = 1                  # passes over the folder; 0 = forever
 //! health_rate_hz = 1.0
 //!
-//! [camera]                   # see farsight_interfaces::camera::CameraConfig
+//! [[cameras]]
+//! source = "folder"          # "folder" or "v4l2"
+//! folder = "frames"          # folder: relative to this file
+//! rate_hz = 10.0             # folder: frames per second
+//! loops = 1                  # folder: passes over the folder, 0 = forever
+//! device = "/dev/video0"     # v4l2
+//! pixel_format = "yuyv"      # v4l2: "yuyv" or "mjpeg"
+//!
+//! [cameras.model]            # see farsight_interfaces::camera::CameraConfig
 //! name = "front"
 //! width = 1280
 //! height = 720
@@ -21,7 +32,11 @@
 //! fy = 1471.06
 //! cx = 625.01
 //! cy = 376.48
+//! xyz_m = [0.0, 0.0, 1.6]
+//! rpy_deg = [0.0, 0.0, 0.0]  # a rear camera: yaw 180
 //! ```
+
+pub mod v4l2;
 
 use farsight_interfaces::camera::CameraConfig;
 use farsight_interfaces::msg::{ImageHeader, PixelEncoding};
@@ -33,35 +48,72 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct IngestConfig {
-    pub folder: String,
-    pub rate_hz: f64,
-    pub loops: u32,
     pub health_rate_hz: f64,
-    pub camera: CameraConfig,
+    pub cameras: Vec<CameraEntry>,
+}
+
+/// One camera: where its frames come from and its model.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraEntry {
+    #[serde(default = "folder")]
+    pub source: String,
+    #[serde(default)]
+    pub folder: String,
+    #[serde(default = "ten")]
+    pub rate_hz: f64,
+    #[serde(default = "one")]
+    pub loops: u32,
+    #[serde(default = "video0")]
+    pub device: String,
+    #[serde(default = "yuyv")]
+    pub pixel_format: String,
+    pub model: CameraConfig,
+}
+
+fn folder() -> String {
+    "folder".into()
+}
+fn ten() -> f64 {
+    10.0
+}
+fn one() -> u32 {
+    1
+}
+fn video0() -> String {
+    "/dev/video0".into()
+}
+fn yuyv() -> String {
+    "yuyv".into()
 }
 
 impl Default for IngestConfig {
     fn default() -> Self {
         Self {
-            folder: "frames".into(),
-            rate_hz: 10.0,
-            loops: 1,
             health_rate_hz: 1.0,
-            camera: CameraConfig {
-                name: "front".into(),
-                id: None,
-                model: None,
-                width: Some(1280),
-                height: Some(720),
-                fx: Some(1487.75),
-                fy: Some(1471.06),
-                cx: Some(625.01),
-                cy: Some(376.48),
-                distortion: vec![],
-                camera_info: None,
-                xyz_m: [0.0, 0.0, 1.0],
-                rpy_deg: [0.0; 3],
-            },
+            cameras: vec![CameraEntry {
+                source: folder(),
+                folder: "frames".into(),
+                rate_hz: 10.0,
+                loops: 1,
+                device: video0(),
+                pixel_format: yuyv(),
+                model: CameraConfig {
+                    name: "front".into(),
+                    id: None,
+                    model: None,
+                    width: Some(1280),
+                    height: Some(720),
+                    fx: Some(1487.75),
+                    fy: Some(1471.06),
+                    cx: Some(625.01),
+                    cy: Some(376.48),
+                    distortion: vec![],
+                    camera_info: None,
+                    xyz_m: [0.0, 0.0, 1.0],
+                    rpy_deg: [0.0; 3],
+                },
+            }],
         }
     }
 }
@@ -69,23 +121,59 @@ impl Default for IngestConfig {
 impl Validate for IngestConfig {
     fn validate(&self) -> Result<(), ConfigError> {
         ConfigError::check(
-            self.rate_hz > 0.0 && self.rate_hz.is_finite(),
-            "rate_hz",
-            self.rate_hz,
-            "a positive rate in Hz",
-        )?;
-        ConfigError::check(
             self.health_rate_hz > 0.0,
             "health_rate_hz",
             self.health_rate_hz,
             "a positive rate in Hz",
         )?;
         ConfigError::check(
-            !self.folder.is_empty(),
-            "folder",
-            "\"\"",
-            "a folder of PNG images",
-        )
+            !self.cameras.is_empty(),
+            "cameras",
+            "[]",
+            "at least one [[cameras]] table",
+        )?;
+        let mut names = std::collections::HashSet::new();
+        for (i, c) in self.cameras.iter().enumerate() {
+            let key = |k: &str| format!("cameras[{i}].{k}");
+            ConfigError::check(
+                names.insert(c.model.name.clone()),
+                &key("model.name"),
+                &c.model.name,
+                "a name used once",
+            )?;
+            match c.source.as_str() {
+                "folder" => {
+                    ConfigError::check(
+                        !c.folder.is_empty(),
+                        &key("folder"),
+                        "\"\"",
+                        "a folder of PNG/JPEG images",
+                    )?;
+                    ConfigError::check(
+                        c.rate_hz > 0.0 && c.rate_hz.is_finite(),
+                        &key("rate_hz"),
+                        c.rate_hz,
+                        "a positive rate in Hz",
+                    )?;
+                }
+                "v4l2" => {
+                    ConfigError::check(
+                        v4l2::V4l2Format::parse(&c.pixel_format).is_some(),
+                        &key("pixel_format"),
+                        &c.pixel_format,
+                        "\"yuyv\" or \"mjpeg\"",
+                    )?;
+                }
+                other => {
+                    return Err(ConfigError::invalid(
+                        key("source"),
+                        other,
+                        "\"folder\" or \"v4l2\"",
+                    ))
+                }
+            }
+        }
+        Ok(())
     }
 }
 
@@ -95,9 +183,11 @@ pub fn list_images(folder: &Path) -> std::io::Result<Vec<PathBuf>> {
         .flatten()
         .map(|e| e.path())
         .filter(|p| {
-            p.extension()
-                .and_then(|e| e.to_str())
-                .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+            p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
+                ["png", "jpg", "jpeg"]
+                    .iter()
+                    .any(|x| e.eq_ignore_ascii_case(x))
+            })
         })
         .collect();
     files.sort();
@@ -141,7 +231,7 @@ pub enum FrameError {
     },
 }
 
-/// Reads one frame as packed RGB8 (or MONO8), checked against the camera size.
+/// Reads one PNG or JPEG frame as packed RGB8 (or MONO8), checked against the camera size.
 pub fn read_frame(
     path: &Path,
     width: u32,
@@ -153,7 +243,7 @@ pub fn read_frame(
         source,
     })?;
     let (mut h, mut data) =
-        farsight_imaging::decode_png(&bytes).map_err(|source| FrameError::Decode {
+        farsight_imaging::decode_image(&bytes).map_err(|source| FrameError::Decode {
             path: p.clone(),
             source,
         })?;
@@ -182,6 +272,26 @@ mod tests {
     use farsight_interfaces::msg::Stamp;
 
     #[test]
+    fn config_errors_name_the_camera() {
+        let e = farsight_stage::parse_config::<IngestConfig>(
+            "[[cameras]]\nsource = \"usb\"\n[cameras.model]\nname = \"front\"\n",
+            "c.toml",
+        )
+        .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "config key `cameras[0].source` = usb: expected \"folder\" or \"v4l2\""
+        );
+        let two = "[[cameras]]\nfolder = \"a\"\n[cameras.model]\nname = \"front\"\n[[cameras]]\nfolder = \"b\"\n[cameras.model]\nname = \"front\"\n";
+        let e = farsight_stage::parse_config::<IngestConfig>(two, "c.toml").unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("config key `cameras[1].model.name` = front"),
+            "{e}"
+        );
+    }
+
+    #[test]
     fn timestamps_from_names() {
         assert_eq!(
             capture_time_from_name(Path::new("1623170389760.png")),
@@ -204,8 +314,15 @@ mod tests {
         std::fs::write(dir.join("a.png"), &png).unwrap();
         std::fs::write(dir.join("b.png"), &png[..png.len() / 2]).unwrap();
         std::fs::write(dir.join("c.txt"), b"x").unwrap();
+        std::fs::write(
+            dir.join("d.jpg"),
+            farsight_imaging::encode_jpeg(&h, &[9u8; 8 * 4 * 3], 90).unwrap(),
+        )
+        .unwrap();
         let files = list_images(&dir).unwrap();
-        assert_eq!(files.len(), 2);
+        assert_eq!(files.len(), 3);
+        let (jh, _) = read_frame(&files[2], 8, 4).unwrap();
+        assert_eq!((jh.width, jh.encoding), (8, PixelEncoding::RGB8));
         let (fh, data) = read_frame(&files[0], 8, 4).unwrap();
         assert_eq!((fh.width, data.len()), (8, 96));
         assert!(matches!(

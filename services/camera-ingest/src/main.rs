@@ -1,16 +1,37 @@
-//! `farsight-camera-ingest`: wires [`farsight_camera_ingest`] to the bus.
+//! `farsight-camera-ingest`: each camera's source runs in its own thread and
+//! hands frames to the main thread, which writes them into shared memory with
+//! the camera model (iceoryx2 ports stay on the thread that made them).
 
 use anyhow::{bail, Context, Result};
-use farsight_camera_ingest::{capture_time_from_name, list_images, read_frame, IngestConfig};
+use farsight_camera_ingest::v4l2::{V4l2Camera, V4l2Format};
+use farsight_camera_ingest::{
+    capture_time_from_name, list_images, read_frame, CameraEntry, IngestConfig,
+};
+use farsight_interfaces::camera::Camera;
 use farsight_interfaces::clock::{Clock, WallClock};
-use farsight_interfaces::msg::{HealthState, Stamp};
+use farsight_interfaces::msg::{HealthState, ImageHeader, Stamp};
 use farsight_interfaces::topics;
-use farsight_interfaces::transport::ipc::{self, Bus};
+use farsight_interfaces::transport::ipc::Bus;
 use farsight_stage::{load_config, Health, StageArgs};
-use std::ops::ControlFlow;
-use std::time::Duration;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{sync_channel, RecvTimeoutError, SyncSender};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 const STAGE: &str = "camera-ingest";
+
+/// What a source thread sends to the publishing loop.
+enum Event {
+    Frame {
+        camera: usize,
+        header: ImageHeader,
+        data: Vec<u8>,
+        capture_time_ns: Option<u64>,
+    },
+    Dropped(String),
+    End(usize),
+}
 
 fn main() {
     if let Err(e) = run() {
@@ -20,88 +41,197 @@ fn main() {
     }
 }
 
+/// Plays a folder: decode, pace to `rate_hz`, loop; decoded frames are kept
+/// after the first pass (within a budget) so looping costs a copy, not a decode.
+fn folder_source(
+    i: usize,
+    entry: CameraEntry,
+    files: Vec<PathBuf>,
+    (w, h): (u32, u32),
+    tx: SyncSender<Event>,
+    stop: Arc<AtomicBool>,
+) {
+    let period = Duration::from_secs_f64(1.0 / entry.rate_hz);
+    let frame_bytes = w as usize * h as usize * 3;
+    let mut cache: Vec<Option<(ImageHeader, Vec<u8>)>> =
+        if entry.loops != 1 && files.len() * frame_bytes <= 512 << 20 {
+            vec![None; files.len()]
+        } else {
+            vec![]
+        };
+    let mut next = Instant::now();
+    let mut pass = 0;
+    while !stop.load(Ordering::Relaxed) && (entry.loops == 0 || pass < entry.loops) {
+        for (k, path) in files.iter().enumerate() {
+            if stop.load(Ordering::Relaxed) {
+                return;
+            }
+            let now = Instant::now();
+            if next > now {
+                std::thread::sleep(next - now);
+            }
+            next = next.max(now) + period;
+            let read = match cache.get(k).cloned().flatten() {
+                Some(f) => Ok(f),
+                None => read_frame(path, w, h).inspect(|f| {
+                    if let Some(slot) = cache.get_mut(k) {
+                        *slot = Some(f.clone());
+                    }
+                }),
+            };
+            let event = match read {
+                Ok((header, data)) => Event::Frame {
+                    camera: i,
+                    header,
+                    data,
+                    capture_time_ns: capture_time_from_name(path),
+                },
+                Err(e) => Event::Dropped(e.to_string()),
+            };
+            if tx.send(event).is_err() {
+                return;
+            }
+        }
+        pass += 1;
+    }
+    let _ = tx.send(Event::End(i));
+}
+
+fn v4l2_source(i: usize, mut cam: V4l2Camera, tx: SyncSender<Event>, stop: Arc<AtomicBool>) {
+    while !stop.load(Ordering::Relaxed) {
+        let event = match cam.capture(1000) {
+            Ok((header, data)) => Event::Frame {
+                camera: i,
+                header,
+                data,
+                capture_time_ns: None,
+            },
+            Err(e) => Event::Dropped(e.to_string()),
+        };
+        if tx.send(event).is_err() {
+            return;
+        }
+    }
+}
+
 fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
     farsight_stage::init_tracing(args.log_format);
     let config: IngestConfig = load_config(args.config.as_deref())?;
     let base = args.config_dir();
-    let camera = config.camera.build(0, &base)?;
-    let folder = base.join(&config.folder);
-    let files =
-        list_images(&folder).with_context(|| format!("reading folder {}", folder.display()))?;
-    if files.is_empty() {
-        bail!("folder {} holds no PNG images", folder.display());
-    }
-    let (w, h) = (camera.model.width, camera.model.height);
+    let cameras: Vec<Camera> = config
+        .cameras
+        .iter()
+        .enumerate()
+        .map(|(i, c)| c.model.build(i as u32, &base))
+        .collect::<Result<_, _>>()?;
+
     let bus = Bus::open(STAGE)?;
-    let frames = bus.slice_publisher(
-        &topics::camera_image(&camera.name),
-        w as usize * h as usize * 3,
-    )?;
-    let info = bus.publisher(&topics::camera_info(&camera.name))?;
+    let mut publishers = Vec::new();
+    for cam in &cameras {
+        let (w, h) = (cam.model.width as usize, cam.model.height as usize);
+        publishers.push((
+            bus.slice_publisher(&topics::camera_image(&cam.name), w * h * 3)?,
+            bus.publisher(&topics::camera_info(&cam.name))?,
+        ));
+    }
     let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
+
+    // Open every source before announcing readiness: a missing camera or an
+    // empty folder is a start-up error, not a silent stream.
+    let stop = Arc::new(AtomicBool::new(false));
+    let (tx, rx) = sync_channel::<Event>(2 * cameras.len());
+    let mut threads = Vec::new();
+    for (i, (entry, cam)) in config.cameras.iter().zip(&cameras).enumerate() {
+        let size = (cam.model.width, cam.model.height);
+        let (tx, stop) = (tx.clone(), stop.clone());
+        match entry.source.as_str() {
+            "folder" => {
+                let folder: PathBuf = base.join(&entry.folder);
+                let files = list_images(&folder)
+                    .with_context(|| format!("camera {}: folder {}", cam.name, folder.display()))?;
+                if files.is_empty() {
+                    bail!(
+                        "camera {}: folder {} holds no PNG or JPEG images",
+                        cam.name,
+                        folder.display()
+                    );
+                }
+                tracing::info!(camera = %cam.name, folder = %folder.display(), frames = files.len(), "folder source");
+                let entry = entry.clone();
+                threads.push(std::thread::spawn(move || {
+                    folder_source(i, entry, files, size, tx, stop)
+                }));
+            }
+            _ => {
+                let format = V4l2Format::parse(&entry.pixel_format).unwrap_or(V4l2Format::Yuyv);
+                let device = V4l2Camera::open(&entry.device, format, size.0, size.1)
+                    .with_context(|| format!("camera {}", cam.name))?;
+                tracing::info!(camera = %cam.name, device = %entry.device, "v4l2 source");
+                threads.push(std::thread::spawn(move || v4l2_source(i, device, tx, stop)));
+            }
+        }
+    }
+    drop(tx);
     health.set(HealthState::OK, "");
-    tracing::info!(folder = %folder.display(), frames = files.len(), camera = %camera.name, "camera-ingest config");
     farsight_stage::announce_ready(STAGE);
 
     let clock = WallClock;
-    let (mut index, mut pass, mut seq) = (0usize, 0u32, 0u64);
-    // When looping, keep decoded frames after the first pass (within a budget):
-    // replaying a short folder at full speed should cost a copy, not a decode.
-    let frame_bytes = w as usize * h as usize * 3;
-    let cache_budget = 512 << 20;
-    let mut cache: Vec<Option<(farsight_interfaces::msg::ImageHeader, Vec<u8>)>> =
-        if config.loops != 1 && files.len() * frame_bytes <= cache_budget {
-            vec![None; files.len()]
-        } else {
-            vec![]
-        };
-    let period = Duration::from_secs_f64(1.0 / config.rate_hz);
-    ipc::wait_loop(&[], Some(period), |_| {
-        let now = clock.now_ns();
-        if index == files.len() {
-            index = 0;
-            pass += 1;
-            if config.loops != 0 && pass >= config.loops {
-                tracing::info!(published = seq, "all frames published");
-                return ControlFlow::Break(());
-            }
+    let mut seq = vec![0u64; cameras.len()];
+    let mut ended = 0;
+    loop {
+        // SIGTERM/SIGINT: iceoryx2's signal handling reports it through the node.
+        if bus.node().wait(Duration::ZERO).is_err() {
+            tracing::info!("termination requested");
+            break;
         }
-        let path = &files[index];
-        let cached = cache.get(index).cloned().flatten();
-        index += 1;
-        health.input();
-        let read = match cached {
-            Some(frame) => Ok(frame),
-            None => read_frame(path, w, h).inspect(|frame| {
-                if let Some(slot) = cache.get_mut(index - 1) {
-                    *slot = Some(frame.clone());
-                }
-            }),
-        };
-        match read {
-            Err(e) => health.dropped(&e),
-            Ok((header, data)) => {
-                seq += 1;
-                let capture = capture_time_from_name(path).unwrap_or(now);
-                let stamp = Stamp::new(seq, capture);
+        let now = clock.now_ns();
+        match rx.recv_timeout(Duration::from_millis(100)) {
+            Ok(Event::Frame {
+                camera,
+                header,
+                data,
+                capture_time_ns,
+            }) => {
+                health.input();
+                seq[camera] += 1;
+                let cam = &cameras[camera];
+                let stamp = Stamp::new(seq[camera], capture_time_ns.unwrap_or(now));
+                let (frames, info) = &publishers[camera];
                 let sent = frames.publish_with(data.len(), |px| {
                     px.copy_from_slice(&data);
-                    farsight_interfaces::msg::ImageHeader {
+                    ImageHeader {
                         stamp,
-                        camera_id: camera.id,
+                        camera_id: cam.id,
                         ..header
                     }
                 });
-                match sent.and_then(|()| info.publish(&camera.to_info(stamp))) {
-                    Ok(()) => health.output(stamp, now),
+                match sent.and_then(|()| info.publish(&cam.to_info(stamp))) {
+                    Ok(()) => health.output(stamp, clock.now_ns()),
                     Err(e) => health.dropped(&e),
                 }
             }
+            Ok(Event::Dropped(why)) => {
+                health.input();
+                health.dropped(&why);
+            }
+            Ok(Event::End(camera)) => {
+                ended += 1;
+                tracing::info!(camera = %cameras[camera].name, published = seq[camera], "all frames published");
+                if ended == cameras.len() {
+                    break;
+                }
+            }
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => break,
         }
-        health.tick(now);
-        ControlFlow::Continue(())
-    })?;
+        health.tick(clock.now_ns());
+    }
+    stop.store(true, Ordering::Relaxed);
+    drop(rx);
+    for t in threads {
+        let _ = t.join();
+    }
     health.stopping(clock.now_ns());
     Ok(())
 }

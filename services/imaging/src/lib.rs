@@ -222,6 +222,94 @@ pub fn decode_png(bytes: &[u8]) -> Result<(ImageHeader, Vec<u8>), ImageError> {
     Ok((header, buf))
 }
 
+/// Decodes a JPEG (a file, or one MJPEG frame from a camera) into packed RGB8.
+/// A truncated or corrupt stream is an error, never a panic.
+pub fn decode_jpeg(bytes: &[u8]) -> Result<(ImageHeader, Vec<u8>), ImageError> {
+    use zune_jpeg::zune_core::{colorspace::ColorSpace, options::DecoderOptions};
+    let options = DecoderOptions::default().jpeg_set_out_colorspace(ColorSpace::RGB);
+    let mut decoder = zune_jpeg::JpegDecoder::new_with_options(bytes, options);
+    decoder
+        .decode_headers()
+        .map_err(|e| ImageError::Jpeg(format!("{e:?}")))?;
+    let info = decoder
+        .info()
+        .ok_or_else(|| ImageError::Jpeg("no image header".into()))?;
+    let data = decoder
+        .decode()
+        .map_err(|e| ImageError::Jpeg(format!("{e:?}")))?;
+    let header = ImageHeader::packed(
+        Stamp::default(),
+        0,
+        info.width as u32,
+        info.height as u32,
+        PixelEncoding::RGB8,
+    );
+    header.validate(data.len())?;
+    Ok((header, data))
+}
+
+/// Decodes a PNG or JPEG file, told apart by its first bytes.
+pub fn decode_image(bytes: &[u8]) -> Result<(ImageHeader, Vec<u8>), ImageError> {
+    if bytes.starts_with(&[0xff, 0xd8]) {
+        decode_jpeg(bytes)
+    } else {
+        decode_png(bytes)
+    }
+}
+
+/// Converts YUYV (YUV 4:2:2, as V4L2 cameras deliver it) to packed RGB8 with
+/// the BT.601 limited-range matrix webcams use.
+pub fn yuyv_to_rgb(
+    header: &ImageHeader,
+    data: &[u8],
+) -> Result<(ImageHeader, Vec<u8>), ImageError> {
+    header.validate(data.len())?;
+    if header.encoding != PixelEncoding::YUYV {
+        return Err(ImageError::Unsupported {
+            op: "yuyv conversion",
+            encoding: header.encoding,
+        });
+    }
+    let (w, h, stride) = (
+        header.width as usize,
+        header.height as usize,
+        header.stride_bytes as usize,
+    );
+    let mut out = Vec::with_capacity(w * h * 3);
+    let px = |y: u8, u: i32, v: i32| {
+        let c = (y as i32 - 16).max(0) * 298;
+        let clamp = |x: i32| ((x + 128) >> 8).clamp(0, 255) as u8;
+        [
+            clamp(c + 409 * v),
+            clamp(c - 100 * u - 208 * v),
+            clamp(c + 516 * u),
+        ]
+    };
+    for row in 0..h {
+        let line = &data[row * stride..row * stride + w * 2];
+        for (i, q) in line.chunks_exact(4).enumerate() {
+            let (u, v) = (q[1] as i32 - 128, q[3] as i32 - 128);
+            out.extend_from_slice(&px(q[0], u, v));
+            if 2 * i + 1 < w {
+                out.extend_from_slice(&px(q[2], u, v));
+            }
+        }
+        if w % 2 == 1 {
+            // An odd width ends with half a macropixel: Y then U.
+            let q = &line[w * 2 - 2..];
+            out.extend_from_slice(&px(q[0], q[1] as i32 - 128, 0));
+        }
+    }
+    let out_header = ImageHeader::packed(
+        header.stamp,
+        header.camera_id,
+        header.width,
+        header.height,
+        PixelEncoding::RGB8,
+    );
+    Ok((out_header, out))
+}
+
 /// A distinct colour for class `id` (class maps in overlays and snapshots).
 pub fn class_color(id: u8) -> [u8; 3] {
     const PALETTE: [[u8; 3]; 8] = [
@@ -333,6 +421,40 @@ mod tests {
             unit_to_mono16(&[0.0, 1.0, 2.0]),
             vec![0, 0, 255, 255, 255, 255]
         );
+    }
+
+    #[test]
+    fn jpeg_round_trip_and_truncation() {
+        let h = ImageHeader::packed(Stamp::default(), 0, 32, 16, PixelEncoding::RGB8);
+        let d: Vec<u8> = (0..32 * 16).flat_map(|_| [200u8, 100, 50]).collect();
+        let j = encode_jpeg(&h, &d, 95).unwrap();
+        let (h2, d2) = decode_image(&j).unwrap();
+        assert_eq!(
+            (h2.width, h2.height, h2.encoding),
+            (32, 16, PixelEncoding::RGB8)
+        );
+        // A flat colour survives JPEG within a few levels.
+        assert!(d2
+            .chunks(3)
+            .all(|p| p[0].abs_diff(200) < 6 && p[1].abs_diff(100) < 6 && p[2].abs_diff(50) < 6));
+        assert!(decode_jpeg(&j[..20]).is_err());
+    }
+
+    #[test]
+    fn yuyv_converts_known_colours() {
+        // Two macropixels of a captured buffer: white/black, then pure-ish red.
+        // (Y=235,U=128,V=128) white; (Y=16) black; red in BT.601: Y=81 U=90 V=240.
+        let h = ImageHeader::packed(Stamp::default(), 0, 4, 1, PixelEncoding::YUYV);
+        let buf = [235, 128, 16, 128, 81, 90, 81, 240];
+        let (rh, rgb) = yuyv_to_rgb(&h, &buf).unwrap();
+        assert_eq!(rh.encoding, PixelEncoding::RGB8);
+        assert_eq!(&rgb[..6], &[255, 255, 255, 0, 0, 0]);
+        assert!(
+            rgb[6] > 240 && rgb[7] < 15 && rgb[8] < 15,
+            "{:?}",
+            &rgb[6..9]
+        );
+        assert!(yuyv_to_rgb(&h, &buf[..6]).is_err());
     }
 
     #[test]

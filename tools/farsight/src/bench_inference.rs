@@ -104,7 +104,7 @@ fn stage_fps(a: &InferenceArgs) -> Result<f64> {
     std::fs::write(
         dir.join("ingest.toml"),
         format!(
-            "folder = {:?}\nrate_hz = 200.0\nloops = 0\n[camera]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\n",
+            "[[cameras]]\nfolder = {:?}\nrate_hz = 200.0\nloops = 0\n[cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\n",
             frames.display().to_string()
         ),
     )?;

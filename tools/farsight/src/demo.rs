@@ -97,8 +97,8 @@ pub fn run(a: DemoArgs) -> Result<()> {
     std::fs::write(
         &ingest_cfg,
         format!(
-            "# ORFD camera (calib/cam_K), mounted 1.6 m up, looking ahead.\nfolder = {:?}\nrate_hz = {}\nloops = {}\n\n\
-             [camera]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\nxyz_m = [0.0, 0.0, 1.6]\n",
+            "# ORFD camera (calib/cam_K), mounted 1.6 m up, looking ahead.\n[[cameras]]\nfolder = {:?}\nrate_hz = {}\nloops = {}\n\n\
+             [cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\nxyz_m = [0.0, 0.0, 1.6]\n",
             frames.display().to_string(),
             a.rate_hz,
             a.loops
