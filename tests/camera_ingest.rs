@@ -136,3 +136,220 @@ fn a_missing_v4l2_camera_stops_the_stage_with_a_clear_error() {
         "{err}"
     );
 }
+
+/// Minimal CDR writer for the test's ROS 2 messages (alignment counted from
+/// the end of the 4-byte encapsulation header).
+struct Cdr(Vec<u8>);
+
+impl Cdr {
+    fn new() -> Self {
+        Cdr(Vec::new())
+    }
+    fn align(&mut self, n: usize) {
+        while self.0.len() % n != 0 {
+            self.0.push(0);
+        }
+    }
+    fn u32(&mut self, v: u32) -> &mut Self {
+        self.align(4);
+        self.0.extend(v.to_le_bytes());
+        self
+    }
+    fn string(&mut self, s: &str) -> &mut Self {
+        self.u32(s.len() as u32 + 1);
+        self.0.extend(s.as_bytes());
+        self.0.push(0);
+        self
+    }
+    fn bytes(&mut self, b: &[u8]) -> &mut Self {
+        self.u32(b.len() as u32);
+        self.0.extend(b);
+        self
+    }
+    fn finish(&self) -> Vec<u8> {
+        let mut out = vec![0, 1, 0, 0];
+        out.extend(&self.0);
+        out
+    }
+}
+
+fn ros_image(sec: u32, w: u32, h: u32, step: u32, data: &[u8]) -> Vec<u8> {
+    let mut c = Cdr::new();
+    c.u32(sec)
+        .u32(0)
+        .string("front_optical")
+        .u32(h)
+        .u32(w)
+        .string("rgb8");
+    c.0.push(0); // is_bigendian
+    c.u32(step).bytes(data);
+    c.finish()
+}
+
+fn ros_compressed(sec: u32, jpeg: &[u8]) -> Vec<u8> {
+    let mut c = Cdr::new();
+    c.u32(sec)
+        .u32(250_000_000)
+        .string("rear_optical")
+        .string("jpeg")
+        .bytes(jpeg);
+    c.finish()
+}
+
+#[test]
+fn a_ros2_bag_in_mcap_replays_into_the_graph() {
+    let ns = Namespace::new("ingestmcap");
+    let bag = ns.root.join("run.mcap");
+    {
+        let mut w = mcap::Writer::new(std::io::BufWriter::new(
+            std::fs::File::create(&bag).unwrap(),
+        ))
+        .unwrap();
+        let image_schema = w.add_schema("sensor_msgs/msg/Image", "ros2msg", b"std_msgs/Header header\nuint32 height\nuint32 width\nstring encoding\nuint8 is_bigendian\nuint32 step\nuint8[] data\n").unwrap();
+        let compressed_schema = w
+            .add_schema(
+                "sensor_msgs/msg/CompressedImage",
+                "ros2msg",
+                b"std_msgs/Header header\nstring format\nuint8[] data\n",
+            )
+            .unwrap();
+        let meta = Default::default();
+        let front = w
+            .add_channel(image_schema, "/front/image_raw", "cdr", &meta)
+            .unwrap();
+        let rear = w
+            .add_channel(
+                compressed_schema,
+                "/rear/image_raw/compressed",
+                "cdr",
+                &meta,
+            )
+            .unwrap();
+        let h = ImageHeader::packed(Stamp::default(), 0, 64, 48, PixelEncoding::RGB8);
+        let jpeg = farsight_imaging::encode_jpeg(&h, &vec![120u8; 64 * 48 * 3], 90).unwrap();
+        for k in 0..4u32 {
+            let t = 1_000_000_000 + k as u64 * 50_000_000;
+            let header = |channel_id| mcap::records::MessageHeader {
+                channel_id,
+                sequence: k,
+                log_time: t,
+                publish_time: t,
+            };
+            let pixels = vec![10 * k as u8 + 1; 64 * 48 * 3];
+            // Message 2 claims a row stride that does not match its data: dropped.
+            let step = if k == 2 { 64 * 3 + 1 } else { 64 * 3 };
+            w.write_to_known_channel(&header(front), &ros_image(100 + k, 64, 48, step, &pixels))
+                .unwrap();
+            w.write_to_known_channel(&header(rear), &ros_compressed(200 + k, &jpeg))
+                .unwrap();
+        }
+        w.finish().unwrap();
+    }
+    let cfg = ns.write(
+        "camera-ingest.toml",
+        &format!(
+            "[[cameras]]\nsource = \"mcap\"\nfile = \"run.mcap\"\ntopic = \"/front/image_raw\"\nspeed = 2.0\n{}\n\
+             [[cameras]]\nsource = \"mcap\"\nfile = \"run.mcap\"\ntopic = \"/rear/image_raw/compressed\"\n{}",
+            model("front", 64, 48, 0.0),
+            model("rear", 64, 48, 180.0)
+        ),
+    );
+    let bus = ns.bus("ingest-mcap-test");
+    let front = bus
+        .slice_subscriber(&topics::camera_image("front"))
+        .unwrap();
+    let rear = bus.slice_subscriber(&topics::camera_image("rear")).unwrap();
+    let mut stage = ns.start_stage("farsight-camera-ingest", "camera-ingest", &cfg);
+    let (mut fronts, mut rears) = (Vec::new(), Vec::new());
+    let end = Instant::now() + Duration::from_secs(15);
+    while Instant::now() < end && (fronts.len() < 3 || rears.len() < 4) {
+        if let Some(f) = front.latest().unwrap() {
+            fronts.push((
+                f.header().stamp.capture_time_ns,
+                f.data()[0],
+                f.header().encoding,
+            ));
+        }
+        if let Some(r) = rear.latest().unwrap() {
+            assert_eq!(r.header().encoding, PixelEncoding::RGB8);
+            assert!(r.data().iter().all(|&v| v.abs_diff(120) < 6));
+            rears.push(r.header().stamp.capture_time_ns);
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    assert_eq!(
+        stage.wait_exit(Duration::from_secs(10)),
+        Some(0),
+        "{}",
+        stage.stderr_so_far()
+    );
+    // The ROS header stamps become capture times; frame 2 (bad stride) is skipped.
+    assert_eq!(
+        fronts,
+        vec![
+            (100_000_000_000, 1, PixelEncoding::RGB8),
+            (101_000_000_000, 11, PixelEncoding::RGB8),
+            (103_000_000_000, 31, PixelEncoding::RGB8)
+        ]
+    );
+    assert_eq!(
+        rears,
+        vec![
+            200_250_000_000,
+            201_250_000_000,
+            202_250_000_000,
+            203_250_000_000
+        ]
+    );
+    let errors = stage.stderr_so_far();
+    assert!(
+        errors.contains("image data holds 9216 bytes, but height 48 x step 193 needs 9264"),
+        "{errors}"
+    );
+}
+
+#[test]
+fn asking_for_a_topic_the_recording_lacks_names_the_ones_it_has() {
+    let ns = Namespace::new("ingestmcap2");
+    let bag = ns.root.join("empty.mcap");
+    {
+        let mut w = mcap::Writer::new(std::io::BufWriter::new(
+            std::fs::File::create(&bag).unwrap(),
+        ))
+        .unwrap();
+        let s = w
+            .add_schema("sensor_msgs/msg/Image", "ros2msg", b"")
+            .unwrap();
+        let c = w
+            .add_channel(s, "/left/image", "cdr", &Default::default())
+            .unwrap();
+        let hdr = mcap::records::MessageHeader {
+            channel_id: c,
+            sequence: 0,
+            log_time: 1,
+            publish_time: 1,
+        };
+        w.write_to_known_channel(&hdr, &ros_image(1, 2, 1, 6, &[0; 6]))
+            .unwrap();
+        w.finish().unwrap();
+    }
+    let cfg = ns.write(
+        "camera-ingest.toml",
+        &format!(
+            "[[cameras]]\nsource = \"mcap\"\nfile = \"empty.mcap\"\ntopic = \"/right/image\"\n{}",
+            model("front", 2, 1, 0.0)
+        ),
+    );
+    let mut p = Proc::start(
+        "farsight-camera-ingest",
+        &["--config", cfg.to_str().unwrap()],
+        &ns,
+    );
+    assert_eq!(p.wait_exit(Duration::from_secs(10)), Some(1));
+    let err = p.stderr_so_far();
+    assert!(
+        err.contains("no topic /right/image in")
+            && err.contains("/left/image (cdr, sensor_msgs/msg/Image)"),
+        "{err}"
+    );
+}

@@ -6,7 +6,10 @@
 //!
 //! - `folder`: PNG/JPEG images sorted by name; names that are Unix timestamps
 //!   (ms or ns) become capture times; played at `rate_hz`, `loops` times;
-//! - `v4l2`: a V4L2 camera (`/dev/videoN`) delivering YUYV or MJPEG, converted to RGB.
+//! - `v4l2`: a V4L2 camera (`/dev/videoN`) delivering YUYV or MJPEG, converted to RGB;
+//! - `mcap`: one topic of an MCAP recording (a ROS 2 bag with
+//!   `sensor_msgs/msg/Image` or `CompressedImage`, or a farsight recording),
+//!   at the recorded pace times `speed`.
 //!
 //! A broken file (truncated image, wrong size) is logged, counted and skipped;
 //! the stream goes on.
@@ -23,6 +26,9 @@
 //! loops = 1                  # folder: passes over the folder, 0 = forever
 //! device = "/dev/video0"     # v4l2
 //! pixel_format = "yuyv"      # v4l2: "yuyv" or "mjpeg"
+//! file = "run.mcap"          # mcap: relative to this file
+//! topic = "/camera/image_raw" # mcap: the channel to play
+//! speed = 1.0                # mcap: 2.0 plays twice as fast
 //!
 //! [cameras.model]            # see farsight_interfaces::camera::CameraConfig
 //! name = "front"
@@ -36,6 +42,8 @@
 //! rpy_deg = [0.0, 0.0, 0.0]  # a rear camera: yaw 180
 //! ```
 
+pub mod mcap_source;
+pub mod ros_cdr;
 pub mod v4l2;
 
 use farsight_interfaces::camera::CameraConfig;
@@ -68,6 +76,12 @@ pub struct CameraEntry {
     pub device: String,
     #[serde(default = "yuyv")]
     pub pixel_format: String,
+    #[serde(default)]
+    pub file: String,
+    #[serde(default)]
+    pub topic: String,
+    #[serde(default = "one_f64")]
+    pub speed: f64,
     pub model: CameraConfig,
 }
 
@@ -79,6 +93,9 @@ fn ten() -> f64 {
 }
 fn one() -> u32 {
     1
+}
+fn one_f64() -> f64 {
+    1.0
 }
 fn video0() -> String {
     "/dev/video0".into()
@@ -98,6 +115,9 @@ impl Default for IngestConfig {
                 loops: 1,
                 device: video0(),
                 pixel_format: yuyv(),
+                file: String::new(),
+                topic: String::new(),
+                speed: 1.0,
                 model: CameraConfig {
                     name: "front".into(),
                     id: None,
@@ -164,11 +184,31 @@ impl Validate for IngestConfig {
                         "\"yuyv\" or \"mjpeg\"",
                     )?;
                 }
+                "mcap" => {
+                    ConfigError::check(
+                        !c.file.is_empty(),
+                        &key("file"),
+                        "\"\"",
+                        "an MCAP recording",
+                    )?;
+                    ConfigError::check(
+                        !c.topic.is_empty(),
+                        &key("topic"),
+                        "\"\"",
+                        "the image topic to play",
+                    )?;
+                    ConfigError::check(
+                        c.speed > 0.0 && c.speed.is_finite(),
+                        &key("speed"),
+                        c.speed,
+                        "a positive factor",
+                    )?;
+                }
                 other => {
                     return Err(ConfigError::invalid(
                         key("source"),
                         other,
-                        "\"folder\" or \"v4l2\"",
+                        "\"folder\", \"v4l2\" or \"mcap\"",
                     ))
                 }
             }
@@ -280,7 +320,7 @@ mod tests {
         .unwrap_err();
         assert_eq!(
             e.to_string(),
-            "config key `cameras[0].source` = usb: expected \"folder\" or \"v4l2\""
+            "config key `cameras[0].source` = usb: expected \"folder\", \"v4l2\" or \"mcap\""
         );
         let two = "[[cameras]]\nfolder = \"a\"\n[cameras.model]\nname = \"front\"\n[[cameras]]\nfolder = \"b\"\n[cameras.model]\nname = \"front\"\n";
         let e = farsight_stage::parse_config::<IngestConfig>(two, "c.toml").unwrap_err();

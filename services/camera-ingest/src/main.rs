@@ -3,6 +3,7 @@
 //! the camera model (iceoryx2 ports stay on the thread that made them).
 
 use anyhow::{bail, Context, Result};
+use farsight_camera_ingest::mcap_source::McapFile;
 use farsight_camera_ingest::v4l2::{V4l2Camera, V4l2Format};
 use farsight_camera_ingest::{
     capture_time_from_name, list_images, read_frame, CameraEntry, IngestConfig,
@@ -97,6 +98,67 @@ fn folder_source(
     let _ = tx.send(Event::End(i));
 }
 
+/// Plays one topic of an MCAP recording at its recorded pace (times `speed`).
+fn mcap_source(
+    i: usize,
+    entry: CameraEntry,
+    file: McapFile,
+    (w, h): (u32, u32),
+    tx: SyncSender<Event>,
+    stop: Arc<AtomicBool>,
+) {
+    let mut pass = 0;
+    while !stop.load(Ordering::Relaxed) && (entry.loops == 0 || pass < entry.loops) {
+        let start = Instant::now();
+        let mut first_log: Option<u64> = None;
+        let played = file.for_each_frame(&entry.topic, |frame| {
+            if stop.load(Ordering::Relaxed) {
+                return false;
+            }
+            let t0 = *first_log.get_or_insert(frame.log_time_ns);
+            let due = Duration::from_nanos(
+                ((frame.log_time_ns.saturating_sub(t0)) as f64 / entry.speed) as u64,
+            );
+            if let Some(wait) = due.checked_sub(start.elapsed()) {
+                std::thread::sleep(wait);
+            }
+            let event = match frame.image {
+                Ok((header, _)) if (header.width, header.height) != (w, h) => {
+                    Event::Dropped(format!(
+                        "{}: frame is {}x{}, the camera model says {w}x{h}",
+                        entry.topic, header.width, header.height
+                    ))
+                }
+                Ok((header, data)) => Event::Frame {
+                    camera: i,
+                    capture_time_ns: Some(header.stamp.capture_time_ns)
+                        .filter(|&t| t > 0)
+                        .or(Some(frame.log_time_ns)),
+                    header,
+                    data,
+                },
+                Err(e) => Event::Dropped(format!("{}: {e}", entry.topic)),
+            };
+            tx.send(event).is_ok()
+        });
+        match played {
+            Ok(0) => {
+                let _ = tx.send(Event::Dropped(format!(
+                    "no messages on topic {} in the recording",
+                    entry.topic
+                )));
+                break;
+            }
+            Ok(_) => {}
+            Err(e) => {
+                let _ = tx.send(Event::Dropped(e));
+            }
+        }
+        pass += 1;
+    }
+    let _ = tx.send(Event::End(i));
+}
+
 fn v4l2_source(i: usize, mut cam: V4l2Camera, tx: SyncSender<Event>, stop: Arc<AtomicBool>) {
     while !stop.load(Ordering::Relaxed) {
         let event = match cam.capture(1000) {
@@ -161,6 +223,30 @@ fn run() -> Result<()> {
                 let entry = entry.clone();
                 threads.push(std::thread::spawn(move || {
                     folder_source(i, entry, files, size, tx, stop)
+                }));
+            }
+            "mcap" => {
+                let path = base.join(&entry.file);
+                let file = McapFile::open(&path)
+                    .map_err(anyhow::Error::msg)
+                    .with_context(|| format!("camera {}", cam.name))?;
+                let channels = file.channels().map_err(anyhow::Error::msg)?;
+                if !channels.iter().any(|(t, _, _)| *t == entry.topic) {
+                    let topics: Vec<String> = channels
+                        .iter()
+                        .map(|(t, e, s)| format!("{t} ({e}, {s})"))
+                        .collect();
+                    bail!(
+                        "camera {}: no topic {} in {}; it has {topics:?}",
+                        cam.name,
+                        entry.topic,
+                        path.display()
+                    );
+                }
+                tracing::info!(camera = %cam.name, file = %path.display(), topic = %entry.topic, "mcap source");
+                let entry = entry.clone();
+                threads.push(std::thread::spawn(move || {
+                    mcap_source(i, entry, file, size, tx, stop)
                 }));
             }
             _ => {

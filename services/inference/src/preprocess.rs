@@ -123,8 +123,7 @@ impl Preprocessor {
                 let (a, b) = (tx.i0 * bpp, tx.i1 * bpp);
                 let wx1 = tx.w1;
                 let wx0 = 1.0 - wx1;
-                for c in 0..3 {
-                    let s = chan[c];
+                for (c, &s) in chan.iter().enumerate() {
                     let top = r0[a + s] as f32 * wx0 + r0[b + s] as f32 * wx1;
                     let bot = r1[a + s] as f32 * wx0 + r1[b + s] as f32 * wx1;
                     let p = top * wy0 + bot * wy1;
