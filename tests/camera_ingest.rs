@@ -146,7 +146,7 @@ impl Cdr {
         Cdr(Vec::new())
     }
     fn align(&mut self, n: usize) {
-        while self.0.len() % n != 0 {
+        while !self.0.len().is_multiple_of(n) {
             self.0.push(0);
         }
     }
