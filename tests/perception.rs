@@ -144,3 +144,78 @@ fn farsight_infer_writes_masks_and_overlays_a_person_can_check() {
     );
     assert!(out.join(format!("{stem}.classes.png")).exists());
 }
+
+#[test]
+fn depth_normals_stage_marks_the_orfd_road_navigable() {
+    let ns = Namespace::new("normalsstage");
+    let data = repo_root().join("../shared/data/orfd");
+    let ingest_cfg = ns.write(
+        "camera-ingest.toml",
+        &format!(
+            "[[cameras]]\nfolder = {:?}\ndepth_folder = {:?}\nrate_hz = 4.0\nloops = 1\n[cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\nxyz_m = [0.0, 0.0, 1.5]\nrpy_deg = [0.0, 6.7, 0.0]\n",
+            data.join("image_data").display().to_string(),
+            data.join("dense_depth").display().to_string()
+        ),
+    );
+    let inference_cfg = ns.write(
+        "inference.toml",
+        "camera = \"front\"\nbackend = \"normals\"\n",
+    );
+    let bus = ns.bus("normals-test");
+    let nav = bus
+        .slice_subscriber(&topics::navigability("front"))
+        .unwrap();
+    let _inference = ns.start_stage("farsight-inference", "inference", &inference_cfg);
+    let mut ingest = ns.start_stage("farsight-camera-ingest", "camera-ingest", &ingest_cfg);
+    let mut seqs = Vec::new();
+    let end = Instant::now() + Duration::from_secs(30);
+    let mut ingest_done: Option<Instant> = None;
+    let mut ingest_code = None;
+    // Until the last frame, or 2 s after camera-ingest finished (skipped frames never come).
+    while seqs.last() != Some(&6)
+        && Instant::now() < end
+        && ingest_done.is_none_or(|t| t.elapsed() < Duration::from_secs(2))
+    {
+        if ingest_done.is_none() {
+            ingest_code = ingest.wait_exit(Duration::ZERO);
+            if ingest_code.is_some() {
+                ingest_done = Some(Instant::now());
+            }
+        }
+        if let Some(s) = nav.latest().unwrap() {
+            let h = *s.header();
+            let (w, hh) = (h.width as usize, h.height as usize);
+            assert_eq!((w, hh), (1280, 720));
+            let (mut n, mut t) = (0, 0);
+            for y in (0.80 * hh as f64) as usize..(0.97 * hh as f64) as usize {
+                for x in (0.25 * w as f64) as usize..(0.45 * w as f64) as usize {
+                    t += 1;
+                    n += (s.data()[y * w + x] == 255) as usize;
+                }
+            }
+            let road = n as f64 / t as f64;
+            assert!(
+                road > 0.8,
+                "frame {}: road ahead {road:.2} navigable",
+                h.stamp.frame_seq
+            );
+            assert!(
+                s.data()[..w * 80].iter().all(|&v| v == 0),
+                "the sky (no depth) is never navigable"
+            );
+            seqs.push(h.stamp.frame_seq);
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    if ingest_code.is_none() {
+        ingest_code = ingest.wait_exit(Duration::from_secs(10));
+    }
+    assert_eq!(ingest_code, Some(0), "{}", ingest.stderr_so_far());
+    // The camera model is published before the first depth frame, so even
+    // that one is processed; a slow machine may skip later ones (latest value).
+    assert_eq!(seqs.first(), Some(&1), "{seqs:?}");
+    assert!(
+        seqs.len() >= 4 && seqs.windows(2).all(|w| w[0] < w[1]),
+        "{seqs:?}"
+    );
+}

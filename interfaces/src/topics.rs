@@ -131,6 +131,11 @@ pub type CostmapTopic = Topic<Slice<CostmapHeader, CostCell>>;
 pub fn camera_image(camera: &str) -> ImageTopic {
     Topic::known(format!("camera/{camera}/image"))
 }
+/// Depth image of camera `camera`, registered to its frames (mono16 in the
+/// source's units, or f32 metres), stamped like the frame it belongs to.
+pub fn depth(camera: &str) -> ImageTopic {
+    Topic::known(format!("camera/{camera}/depth"))
+}
 /// The camera model of camera `camera`, republished with its frames.
 pub fn camera_info(camera: &str) -> Topic<CameraInfo> {
     Topic::known(format!("camera/{camera}/info"))
@@ -214,7 +219,7 @@ pub enum TopicKind {
 pub fn kind_of(topic: &str) -> Option<TopicKind> {
     let parts: Vec<&str> = topic.split('/').collect();
     Some(match parts.as_slice() {
-        ["camera", _, "image"] => TopicKind::Image,
+        ["camera", _, "image" | "depth"] => TopicKind::Image,
         ["camera", _, "info"] => TopicKind::CameraInfo,
         ["perception", _, "classes" | "confidence" | "navigability" | "heatmap"] => {
             TopicKind::Image
@@ -256,6 +261,7 @@ mod tests {
         let names = [
             camera_image("a").name().to_string(),
             camera_info("a").name().to_string(),
+            depth("a").name().to_string(),
             class_map("a").name().to_string(),
             class_confidence("a").name().to_string(),
             navigability("a").name().to_string(),

@@ -22,6 +22,7 @@
 //! [[cameras]]
 //! source = "folder"          # "folder" or "v4l2"
 //! folder = "frames"          # folder: relative to this file
+//! depth_folder = ""          # folder: 16-bit depth PNGs named like the frames -> camera/<name>/depth
 //! rate_hz = 10.0             # folder: frames per second
 //! loops = 1                  # folder: passes over the folder, 0 = forever
 //! device = "/dev/video0"     # v4l2
@@ -68,6 +69,9 @@ pub struct CameraEntry {
     pub source: String,
     #[serde(default)]
     pub folder: String,
+    /// Folder of 16-bit depth PNGs named like the frames (optional).
+    #[serde(default)]
+    pub depth_folder: String,
     #[serde(default = "ten")]
     pub rate_hz: f64,
     #[serde(default = "one")]
@@ -111,6 +115,7 @@ impl Default for IngestConfig {
             cameras: vec![CameraEntry {
                 source: folder(),
                 folder: "frames".into(),
+                depth_folder: String::new(),
                 rate_hz: 10.0,
                 loops: 1,
                 device: video0(),

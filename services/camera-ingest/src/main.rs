@@ -29,6 +29,8 @@ enum Event {
         header: ImageHeader,
         data: Vec<u8>,
         capture_time_ns: Option<u64>,
+        /// The registered depth image, when the source has one.
+        depth: Option<(ImageHeader, Vec<u8>)>,
     },
     Dropped(String),
     End(usize),
@@ -44,9 +46,29 @@ fn main() {
 
 /// Plays a folder: decode, pace to `rate_hz`, loop; decoded frames are kept
 /// after the first pass (within a budget) so looping costs a copy, not a decode.
+/// Reads a 16-bit depth PNG registered to a frame of size `w` x `h`.
+fn read_depth(path: &std::path::Path, w: u32, h: u32) -> Result<(ImageHeader, Vec<u8>), String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let (header, data) =
+        farsight_imaging::decode_png(&bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+    if header.encoding != farsight_interfaces::msg::PixelEncoding::MONO16
+        || (header.width, header.height) != (w, h)
+    {
+        return Err(format!(
+            "{}: depth must be a {w}x{h} 16-bit PNG, got {}x{} {}",
+            path.display(),
+            header.width,
+            header.height,
+            header.encoding
+        ));
+    }
+    Ok((header, data))
+}
+
 fn folder_source(
     i: usize,
     entry: CameraEntry,
+    depth_dir: Option<PathBuf>,
     files: Vec<PathBuf>,
     (w, h): (u32, u32),
     tx: SyncSender<Event>,
@@ -60,6 +82,7 @@ fn folder_source(
         } else {
             vec![]
         };
+    let depth_dir = depth_dir.filter(|d| !d.as_os_str().is_empty());
     let mut next = Instant::now();
     let mut pass = 0;
     while !stop.load(Ordering::Relaxed) && (entry.loops == 0 || pass < entry.loops) {
@@ -80,12 +103,27 @@ fn folder_source(
                     }
                 }),
             };
+            let depth = match (&depth_dir, &read) {
+                (Some(dir), Ok(_)) => {
+                    match read_depth(&dir.join(path.file_name().unwrap_or_default()), w, h) {
+                        Ok(d) => Some(d),
+                        Err(e) => {
+                            if tx.send(Event::Dropped(format!("depth: {e}"))).is_err() {
+                                return;
+                            }
+                            None
+                        }
+                    }
+                }
+                _ => None,
+            };
             let event = match read {
                 Ok((header, data)) => Event::Frame {
                     camera: i,
                     header,
                     data,
                     capture_time_ns: capture_time_from_name(path),
+                    depth,
                 },
                 Err(e) => Event::Dropped(e.to_string()),
             };
@@ -136,6 +174,7 @@ fn mcap_source(
                         .or(Some(frame.log_time_ns)),
                     header,
                     data,
+                    depth: None,
                 },
                 Err(e) => Event::Dropped(format!("{}: {e}", entry.topic)),
             };
@@ -167,6 +206,7 @@ fn v4l2_source(i: usize, mut cam: V4l2Camera, tx: SyncSender<Event>, stop: Arc<A
                 header,
                 data,
                 capture_time_ns: None,
+                depth: None,
             },
             Err(e) => Event::Dropped(e.to_string()),
         };
@@ -190,12 +230,21 @@ fn run() -> Result<()> {
 
     let bus = Bus::open(STAGE)?;
     let mut publishers = Vec::new();
+    let mut depth_publishers = Vec::new();
     for cam in &cameras {
         let (w, h) = (cam.model.width as usize, cam.model.height as usize);
         publishers.push((
             bus.slice_publisher(&topics::camera_image(&cam.name), w * h * 3)?,
             bus.publisher(&topics::camera_info(&cam.name))?,
         ));
+    }
+    for (entry, cam) in config.cameras.iter().zip(&cameras) {
+        let (w, h) = (cam.model.width as usize, cam.model.height as usize);
+        depth_publishers.push(if entry.depth_folder.is_empty() {
+            None
+        } else {
+            Some(bus.slice_publisher(&topics::depth(&cam.name), w * h * 2)?)
+        });
     }
     let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
 
@@ -221,8 +270,10 @@ fn run() -> Result<()> {
                 }
                 tracing::info!(camera = %cam.name, folder = %folder.display(), frames = files.len(), "folder source");
                 let entry = entry.clone();
+                let depth_dir =
+                    (!entry.depth_folder.is_empty()).then(|| base.join(&entry.depth_folder));
                 threads.push(std::thread::spawn(move || {
-                    folder_source(i, entry, files, size, tx, stop)
+                    folder_source(i, entry, depth_dir, files, size, tx, stop)
                 }));
             }
             "mcap" => {
@@ -278,21 +329,41 @@ fn run() -> Result<()> {
                 header,
                 data,
                 capture_time_ns,
+                depth,
             }) => {
                 health.input();
                 seq[camera] += 1;
                 let cam = &cameras[camera];
                 let stamp = Stamp::new(seq[camera], capture_time_ns.unwrap_or(now));
                 let (frames, info) = &publishers[camera];
-                let sent = frames.publish_with(data.len(), |px| {
-                    px.copy_from_slice(&data);
-                    ImageHeader {
-                        stamp,
-                        camera_id: cam.id,
-                        ..header
-                    }
+                // The camera model goes first: a consumer that needs it (depth
+                // normals, bin projection) can use the very first frame.
+                let sent = info.publish(&cam.to_info(stamp));
+                let sent = sent.and_then(|()| {
+                    frames.publish_with(data.len(), |px| {
+                        px.copy_from_slice(&data);
+                        ImageHeader {
+                            stamp,
+                            camera_id: cam.id,
+                            ..header
+                        }
+                    })
                 });
-                match sent.and_then(|()| info.publish(&cam.to_info(stamp))) {
+                // The depth image goes out with the frame's stamp, so consumers can pair them.
+                let sent = match (depth, &depth_publishers[camera]) {
+                    (Some((dh, dd)), Some(dp)) => sent.and_then(|()| {
+                        dp.publish_copy(
+                            ImageHeader {
+                                stamp,
+                                camera_id: cam.id,
+                                ..dh
+                            },
+                            &dd,
+                        )
+                    }),
+                    _ => sent,
+                };
+                match sent {
                     Ok(()) => health.output(stamp, clock.now_ns()),
                     Err(e) => health.dropped(&e),
                 }

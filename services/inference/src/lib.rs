@@ -53,6 +53,12 @@ pub enum FrameError {
     Post(#[from] PostprocessError),
     #[error("outputs disagree on size: {0}x{1} vs {2}x{3}")]
     SizeMismatch(usize, usize, usize, usize),
+    #[error(transparent)]
+    Frame(#[from] preprocess::PreprocessError),
+    #[error("no camera model received yet on camera/<name>/info: depth cannot be turned into normals without it")]
+    NoCamera,
+    #[error("depth image: {0}")]
+    Depth(String),
 }
 
 impl Perception {
@@ -104,7 +110,16 @@ impl Perception {
 
 /// A loaded backend.
 pub enum Backend {
+    /// A model described by a model config.
     Onnx(Box<OnnxModel>),
+    /// Colour thresholds on the camera frame.
+    Hsv(Vec<hsv::HsvRange>),
+    /// Surface normals of the depth image; needs the camera's model and mount.
+    Normals(
+        normals::NormalsConfig,
+        Option<Box<farsight_interfaces::camera::Camera>>,
+        Option<Box<normals::RayTable>>,
+    ),
 }
 
 impl Backend {
@@ -120,6 +135,74 @@ impl Backend {
             Backend::Onnx(model) => model.run(header, frame, timings, |outputs| {
                 Perception::from_outputs(outputs, table)
             })?,
+            Backend::Hsv(ranges) => {
+                let t = std::time::Instant::now();
+                let nav = hsv::navigability(header, frame, ranges)?;
+                timings.inference_s = t.elapsed().as_secs_f64();
+                Ok(Perception {
+                    width: header.width as usize,
+                    height: header.height as usize,
+                    navigability: Some(nav),
+                    ..Default::default()
+                })
+            }
+            Backend::Normals(cfg, camera, rays) => {
+                let camera = camera.as_deref().ok_or(FrameError::NoCamera)?;
+                let t = std::time::Instant::now();
+                let depth = depth_metres(header, frame, cfg.depth_scale_m)?;
+                let (w, h) = (header.width as usize, header.height as usize);
+                if !rays.as_ref().is_some_and(|r| r.fits(camera, w, h)) {
+                    *rays = Some(Box::new(normals::RayTable::new(camera, w, h)));
+                }
+                let table = rays.as_deref().expect("just built");
+                let nav = normals::navigability_with_rays(&depth, table, cfg);
+                timings.inference_s = t.elapsed().as_secs_f64();
+                Ok(Perception {
+                    width: w,
+                    height: h,
+                    navigability: Some(nav),
+                    ..Default::default()
+                })
+            }
         }
     }
+}
+
+/// Depth in metres from a MONO16 (times `scale_m`) or F32 (metres) image; 0 = no data.
+pub fn depth_metres(
+    header: &ImageHeader,
+    data: &[u8],
+    scale_m: f32,
+) -> Result<Vec<f32>, FrameError> {
+    use farsight_interfaces::msg::PixelEncoding;
+    header
+        .validate(data.len())
+        .map_err(|e| FrameError::Depth(e.to_string()))?;
+    let (w, h, stride) = (
+        header.width as usize,
+        header.height as usize,
+        header.stride_bytes as usize,
+    );
+    let mut out = Vec::with_capacity(w * h);
+    for row in 0..h {
+        let line = &data[row * stride..];
+        match header.encoding {
+            PixelEncoding::MONO16 => out.extend(
+                line[..w * 2]
+                    .chunks_exact(2)
+                    .map(|b| u16::from_le_bytes([b[0], b[1]]) as f32 * scale_m),
+            ),
+            PixelEncoding::F32 => out.extend(
+                line[..w * 4]
+                    .chunks_exact(4)
+                    .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+            ),
+            e => {
+                return Err(FrameError::Depth(format!(
+                    "{e} is not a depth encoding (mono16 or f32)"
+                )))
+            }
+        }
+    }
+    Ok(out)
 }

@@ -92,11 +92,21 @@ fn run() -> Result<()> {
     farsight_stage::init_tracing(args.log_format);
     let config: InferenceConfig = load_config(args.config.as_deref())?;
     let base = args.config_dir();
-    let model_config = ModelConfig::load(&base.join(&config.model_config))?;
-    let model = OnnxModel::load(&model_config).context("loading the model")?;
-    let mut backend = Backend::Onnx(Box::new(model));
+    let (mut backend, model_table) = match config.backend.as_str() {
+        "onnx" => {
+            let model_config = ModelConfig::load(&base.join(&config.model_config))?;
+            let model = OnnxModel::load(&model_config).context("loading the model")?;
+            tracing::info!(model = %model_config.model_path().display(), "onnx backend");
+            (
+                Backend::Onnx(Box::new(model)),
+                model_config.class_table_path(),
+            )
+        }
+        "hsv" => (Backend::Hsv(config.hsv.ranges.clone()), None),
+        _ => (Backend::Normals(config.normals, None, None), None),
+    };
     let table_path = if config.class_table.is_empty() {
-        model_config.class_table_path()
+        model_table
     } else {
         Some(base.join(&config.class_table))
     };
@@ -106,7 +116,16 @@ fn run() -> Result<()> {
         .transpose()?;
 
     let bus = Bus::open(STAGE)?;
-    let frames = bus.slice_subscriber(&topics::camera_image(&config.camera))?;
+    // The normals backend reads depth (and the camera model for the mount);
+    // every other backend reads the camera frames.
+    let uses_depth = matches!(backend, Backend::Normals(..));
+    let input_topic = if uses_depth {
+        topics::depth(&config.camera)
+    } else {
+        topics::camera_image(&config.camera)
+    };
+    let frames = bus.slice_subscriber(&input_topic)?;
+    let camera_info = bus.subscriber(&topics::camera_info(&config.camera))?;
     let mut outputs = Outputs {
         camera: config.camera.clone(),
         classes: None,
@@ -117,7 +136,7 @@ fn run() -> Result<()> {
     };
     let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
     health.set(HealthState::OK, "");
-    tracing::info!(model = %model_config.model_path().display(), camera = %config.camera, "inference config");
+    tracing::info!(backend = %config.backend, input = %input_topic.name(), "inference config");
     farsight_stage::announce_ready(STAGE);
 
     let clock = WallClock;
@@ -136,6 +155,14 @@ fn run() -> Result<()> {
                     Ok(Some(frame)) => {
                         health.input();
                         let h = *frame.header();
+                        if let (Backend::Normals(_, camera, _), Ok(Some(info))) =
+                            (&mut backend, camera_info.latest())
+                        {
+                            match farsight_interfaces::camera::Camera::from_info(&info) {
+                                Ok(c) => *camera = Some(Box::new(c)),
+                                Err(e) => health.dropped(&format_args!("camera info: {e}")),
+                            }
+                        }
                         let t = table.as_ref().map(|t| t.table());
                         match backend.run(&h, frame.data(), t, &mut timings) {
                             Err(e) => {

@@ -68,6 +68,44 @@ impl NormalsConfig {
     }
 }
 
+/// Each pixel's ray scaled to unit depth (z = 1), so a point is depth * ray.
+/// Un-projecting a distorted lens is iterative, so the table is built once per
+/// camera and image size and reused for every frame.
+pub struct RayTable {
+    pub width: usize,
+    pub height: usize,
+    camera: Camera,
+    rays: Vec<Vector3<f64>>,
+}
+
+impl RayTable {
+    pub fn new(camera: &Camera, width: usize, height: usize) -> Self {
+        let model = camera.model.scaled_to(width as u32, height as u32);
+        let rays = (0..height)
+            .flat_map(|v| (0..width).map(move |u| (u, v)))
+            .map(|(u, v)| {
+                let r = model.unproject(u as f64, v as f64);
+                if r.z > 1e-6 {
+                    r / r.z
+                } else {
+                    Vector3::zeros()
+                }
+            })
+            .collect();
+        Self {
+            width,
+            height,
+            camera: camera.clone(),
+            rays,
+        }
+    }
+
+    /// Whether this table was built for `camera` at this size.
+    pub fn fits(&self, camera: &Camera, width: usize, height: usize) -> bool {
+        self.width == width && self.height == height && self.camera == *camera
+    }
+}
+
 /// Per-pixel ground test before clean-up: 1 = ground.
 pub fn ground_by_normals(
     depth_m: &[f32],
@@ -76,21 +114,15 @@ pub fn ground_by_normals(
     camera: &Camera,
     cfg: &NormalsConfig,
 ) -> Vec<u8> {
-    let model = camera.model.scaled_to(width as u32, height as u32);
-    let rot = camera.mount.robot_from_optical;
+    ground_with_rays(depth_m, &RayTable::new(camera, width, height), cfg)
+}
+
+/// [`ground_by_normals`] with a prepared ray table.
+pub fn ground_with_rays(depth_m: &[f32], table: &RayTable, cfg: &NormalsConfig) -> Vec<u8> {
+    let (width, height) = (table.width, table.height);
+    let rot = table.camera.mount.robot_from_optical;
     let cos_tilt = cfg.max_tilt_deg.to_radians().cos() as f64;
-    // Rays scaled to unit depth (z = 1), so a point is depth * ray.
-    let rays: Vec<Vector3<f64>> = (0..height)
-        .flat_map(|v| (0..width).map(move |u| (u, v)))
-        .map(|(u, v)| {
-            let r = model.unproject(u as f64, v as f64);
-            if r.z > 1e-6 {
-                r / r.z
-            } else {
-                Vector3::zeros()
-            }
-        })
-        .collect();
+    let rays = &table.rays;
     let point = |i: usize| -> Option<Vector3<f64>> {
         let z = depth_m[i];
         (z.is_finite() && z > 0.0 && rays[i].z > 0.0).then(|| rays[i] * z as f64)
@@ -183,8 +215,13 @@ pub fn navigability(
     camera: &Camera,
     cfg: &NormalsConfig,
 ) -> Vec<u8> {
-    let ground = ground_by_normals(depth_m, width, height, camera, cfg);
-    clean_up(&ground, width, height, cfg.min_obstacle_px)
+    navigability_with_rays(depth_m, &RayTable::new(camera, width, height), cfg)
+}
+
+/// [`navigability`] with a prepared ray table (what the stage uses per frame).
+pub fn navigability_with_rays(depth_m: &[f32], table: &RayTable, cfg: &NormalsConfig) -> Vec<u8> {
+    let ground = ground_with_rays(depth_m, table, cfg);
+    clean_up(&ground, table.width, table.height, cfg.min_obstacle_px)
 }
 
 #[cfg(test)]

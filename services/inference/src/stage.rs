@@ -1,14 +1,27 @@
 //! The inference stage's config (`inference.toml`, defaults shown):
 //!
 //! ```toml
-//! camera = "front"               # reads camera/<camera>/image
-//! backend = "onnx"               # only "onnx" in this version
-//! model_config = "models/twinlitenet.toml"   # relative to this file
-//! class_table = ""               # overrides the model config's class table
+//! camera = "front"               # reads camera/<camera>/image (camera/<camera>/depth for normals)
+//! backend = "onnx"               # "onnx", "hsv" (colour thresholds) or "normals" (depth)
+//! model_config = "models/twinlitenet.toml"   # onnx: relative to this file
+//! class_table = ""               # onnx: overrides the model config's class table
 //! class_table_poll_s = 1.0       # how often the class table file is checked for edits
 //! health_rate_hz = 1.0
+//!
+//! [[hsv.ranges]]                 # hsv: see farsight_inference::hsv
+//! hue_deg = [20.0, 50.0]
+//! saturation = [0.0, 0.35]
+//! value = [0.35, 1.0]
+//!
+//! [normals]                      # normals: see farsight_inference::normals
+//! max_tilt_deg = 20.0
+//! step_px = 4
+//! min_obstacle_px = 6
+//! depth_scale_m = 0.001          # metres per unit of mono16 depth
 //! ```
 
+use crate::hsv::HsvRange;
+use crate::normals::NormalsConfig;
 use farsight_stage::{ConfigError, Validate};
 use serde::{Deserialize, Serialize};
 
@@ -21,6 +34,15 @@ pub struct InferenceConfig {
     pub class_table: String,
     pub class_table_poll_s: f64,
     pub health_rate_hz: f64,
+    pub hsv: HsvConfig,
+    pub normals: NormalsConfig,
+}
+
+/// The colour ranges of the hsv backend.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HsvConfig {
+    pub ranges: Vec<HsvRange>,
 }
 
 impl Default for InferenceConfig {
@@ -32,6 +54,8 @@ impl Default for InferenceConfig {
             class_table: String::new(),
             class_table_poll_s: 1.0,
             health_rate_hz: 1.0,
+            hsv: HsvConfig::default(),
+            normals: NormalsConfig::default(),
         }
     }
 }
@@ -40,13 +64,33 @@ impl Validate for InferenceConfig {
     fn validate(&self) -> Result<(), ConfigError> {
         farsight_interfaces::topics::validate_name(&self.camera)
             .map_err(|e| ConfigError::invalid("camera", &self.camera, e.why))?;
-        ConfigError::check(self.backend == "onnx", "backend", &self.backend, "\"onnx\"")?;
-        ConfigError::check(
-            !self.model_config.is_empty(),
-            "model_config",
-            "\"\"",
-            "the path of a model config TOML",
-        )?;
+        match self.backend.as_str() {
+            "onnx" => ConfigError::check(
+                !self.model_config.is_empty(),
+                "model_config",
+                "\"\"",
+                "the path of a model config TOML",
+            )?,
+            "hsv" => {
+                ConfigError::check(
+                    !self.hsv.ranges.is_empty(),
+                    "hsv.ranges",
+                    "[]",
+                    "at least one [[hsv.ranges]] table",
+                )?;
+                for (i, r) in self.hsv.ranges.iter().enumerate() {
+                    r.validate(&format!("hsv.ranges[{i}]"))?;
+                }
+            }
+            "normals" => self.normals.validate()?,
+            other => {
+                return Err(ConfigError::invalid(
+                    "backend",
+                    other,
+                    "\"onnx\", \"hsv\" or \"normals\"",
+                ))
+            }
+        }
         ConfigError::check(
             self.class_table_poll_s > 0.0,
             "class_table_poll_s",
@@ -59,5 +103,36 @@ impl Validate for InferenceConfig {
             self.health_rate_hz,
             "a positive rate in Hz",
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backend_settings_are_checked_by_name() {
+        let e = farsight_stage::parse_config::<InferenceConfig>("backend = \"hsv\"", "i.toml")
+            .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "config key `hsv.ranges` = []: expected at least one [[hsv.ranges]] table"
+        );
+        let e = farsight_stage::parse_config::<InferenceConfig>(
+            "backend = \"normals\"\n[normals]\nstep_px = 0",
+            "i.toml",
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("config key `normals.step_px` = 0"),
+            "{e}"
+        );
+        let e = farsight_stage::parse_config::<InferenceConfig>("backend = \"yolo\"", "i.toml")
+            .unwrap_err();
+        assert!(
+            e.to_string().contains("\"onnx\", \"hsv\" or \"normals\""),
+            "{e}"
+        );
     }
 }
