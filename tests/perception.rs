@@ -219,3 +219,189 @@ fn depth_normals_stage_marks_the_orfd_road_navigable() {
         "{seqs:?}"
     );
 }
+
+/// Starts camera-ingest on the ORFD frames (looping) and an inference stage
+/// with `inference_toml`; returns (namespace-owned) processes.
+fn orfd_graph(
+    ns: &Namespace,
+    inference_toml: &str,
+    loops: u32,
+) -> (farsight_tests::Proc, farsight_tests::Proc) {
+    let ingest_cfg = ns.write(
+        "camera-ingest.toml",
+        &format!(
+            "[[cameras]]\nfolder = {:?}\nrate_hz = 4.0\nloops = {loops}\n[cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\n",
+            repo_root().join("../shared/data/orfd/image_data").display().to_string()
+        ),
+    );
+    let inference_cfg = ns.write("inference.toml", inference_toml);
+    let inference = ns.start_stage("farsight-inference", "inference", &inference_cfg);
+    let ingest = ns.start_stage("farsight-camera-ingest", "camera-ingest", &ingest_cfg);
+    (inference, ingest)
+}
+
+#[test]
+fn deeplabv3_stage_publishes_21_class_maps_with_confidence() {
+    let ns = Namespace::new("deeplabstage");
+    let bus = ns.bus("deeplab-test");
+    let classes = bus.slice_subscriber(&topics::class_map("front")).unwrap();
+    let confidence = bus
+        .slice_subscriber(&topics::class_confidence("front"))
+        .unwrap();
+    let cfg = format!(
+        "camera = \"front\"\nmodel_config = {:?}\n",
+        repo_root()
+            .join("deploy/models/deeplabv3-voc.toml")
+            .display()
+            .to_string()
+    );
+    let _graph = orfd_graph(&ns, &cfg, 1);
+    let end = Instant::now() + Duration::from_secs(30);
+    let (mut got_classes, mut got_conf) = (None, None);
+    while (got_classes.is_none() || got_conf.is_none()) && Instant::now() < end {
+        if let Some(c) = classes.latest().unwrap() {
+            let h = *c.header();
+            assert_eq!(
+                (h.width, h.height, h.encoding),
+                (257, 257, PixelEncoding::MONO8)
+            );
+            assert!(c.data().iter().all(|&id| id < 21));
+            got_classes = Some(h.stamp.frame_seq);
+        }
+        if let Some(c) = confidence.latest().unwrap() {
+            let h = *c.header();
+            assert_eq!(h.encoding, PixelEncoding::F32);
+            let p: Vec<f32> = c
+                .data()
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+                .collect();
+            assert_eq!(p.len(), 257 * 257);
+            assert!(
+                p.iter().all(|&v| v > 0.0 && v <= 1.0),
+                "softmax confidence is a probability"
+            );
+            got_conf = Some(h.stamp.frame_seq);
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert!(
+        got_classes.is_some() && got_conf.is_some(),
+        "{got_classes:?} {got_conf:?}"
+    );
+}
+
+#[test]
+fn non_finite_model_output_is_dropped_and_counted_never_published() {
+    let ns = Namespace::new("nanstage");
+    // A model config whose input scale overflows f32: the real network then
+    // produces inf/NaN for every frame.
+    let base = std::fs::read_to_string(repo_root().join("deploy/models/twinlitenet.toml")).unwrap();
+    let models = repo_root().join("deploy/models");
+    let broken = base
+        .replace("scale = 0.00392156862745098", "scale = 1e38")
+        .replace(
+            "model = \"../../../shared/",
+            &format!("model = \"{}/../../../shared/", models.display()),
+        )
+        .replace(
+            "class_table = \"",
+            &format!("class_table = \"{}/", models.display()),
+        );
+    let model_cfg = ns.write("overflow.toml", &broken);
+    let bus = ns.bus("nan-test");
+    let nav = bus
+        .slice_subscriber(&topics::navigability("front"))
+        .unwrap();
+    let health = bus.subscriber(&topics::health("inference")).unwrap();
+    let (mut inference, _ingest) = orfd_graph(
+        &ns,
+        &format!(
+            "camera = \"front\"\nmodel_config = {:?}\n",
+            model_cfg.display().to_string()
+        ),
+        1,
+    );
+    let end = Instant::now() + Duration::from_secs(20);
+    let mut last = None;
+    while Instant::now() < end {
+        assert!(
+            nav.latest().unwrap().is_none(),
+            "a frame with non-finite output was published"
+        );
+        if let Some(h) = health.latest().unwrap() {
+            if h.dropped >= 3 {
+                last = Some(h);
+                break;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let h = last.expect("the stage reports dropped frames in its health");
+    assert_eq!(h.messages_out, 0);
+    assert!(
+        inference.stderr_so_far().contains("non-finite values"),
+        "{}",
+        inference.stderr_so_far()
+    );
+    assert_eq!(
+        inference.wait_exit(Duration::ZERO),
+        None,
+        "the stage keeps running"
+    );
+}
+
+#[test]
+fn class_table_edits_take_effect_without_a_restart() {
+    let ns = Namespace::new("classtable");
+    let table = ns.write(
+        "classes.toml",
+        "[[class]]\nid = 1\nname = \"drivable\"\nnavigable = true\ncost_s_per_m = 0.25\n",
+    );
+    let cfg =
+        format!(
+        "camera = \"front\"\nmodel_config = {:?}\nclass_table = {:?}\nclass_table_poll_s = 0.2\n",
+        repo_root().join("deploy/models/twinlitenet.toml").display().to_string(),
+        table.display().to_string()
+    );
+    let bus = ns.bus("classtable-test");
+    let nav = bus
+        .slice_subscriber(&topics::navigability("front"))
+        .unwrap();
+    let (inference, _ingest) = orfd_graph(&ns, &cfg, 0);
+    let navigable = |timeout: u64, want_any: bool| {
+        let end = Instant::now() + Duration::from_secs(timeout);
+        while Instant::now() < end {
+            if let Some(s) = nav.latest().unwrap() {
+                if s.data().contains(&255) == want_any {
+                    return true;
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        false
+    };
+    assert!(
+        navigable(20, true),
+        "the road is navigable with the first table"
+    );
+    // The operator decides nothing is drivable: the running stage follows.
+    std::fs::write(
+        &table,
+        "[[class]]\nid = 1\nname = \"drivable\"\nnavigable = false\n",
+    )
+    .unwrap();
+    let later = std::time::SystemTime::now() + Duration::from_secs(1);
+    std::fs::File::options()
+        .write(true)
+        .open(&table)
+        .unwrap()
+        .set_modified(later)
+        .unwrap();
+    assert!(navigable(20, false), "after the edit nothing is navigable");
+    assert!(
+        inference.stderr_so_far().contains("class table reloaded"),
+        "{}",
+        inference.stderr_so_far()
+    );
+}
