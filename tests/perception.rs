@@ -405,3 +405,51 @@ fn class_table_edits_take_effect_without_a_restart() {
         inference.stderr_so_far()
     );
 }
+
+#[test]
+fn paced_by_its_consumer_camera_ingest_loses_no_frame() {
+    let ns = Namespace::new("paced");
+    let ingest_cfg = ns.write(
+        "camera-ingest.toml",
+        &format!(
+            "[[cameras]]\nfolder = {:?}\nrate_hz = 100.0\nloops = 2\npace_by = \"perception/front/navigability\"\n[cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\n",
+            repo_root().join("../shared/data/orfd/image_data").display().to_string()
+        ),
+    );
+    let inference_cfg = ns.write(
+        "inference.toml",
+        &format!(
+            "camera = \"front\"\nmodel_config = {:?}\n",
+            repo_root()
+                .join("deploy/models/twinlitenet.toml")
+                .display()
+                .to_string()
+        ),
+    );
+    let bus = ns.bus("paced-test");
+    let nav = bus
+        .slice_subscriber(&topics::navigability("front"))
+        .unwrap();
+    let health = bus.subscriber(&topics::health("inference")).unwrap();
+    let _inference = ns.start_stage("farsight-inference", "inference", &inference_cfg);
+    let mut ingest = ns.start_stage("farsight-camera-ingest", "camera-ingest", &ingest_cfg);
+    let mut seqs = Vec::new();
+    let end = Instant::now() + Duration::from_secs(40);
+    while seqs.last() != Some(&12) && Instant::now() < end {
+        if let Some(s) = nav.latest().unwrap() {
+            seqs.push(s.header().stamp.frame_seq);
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    // 100 Hz asked for, but every frame waited for the stage: none skipped.
+    assert_eq!(seqs, (1..=12).collect::<Vec<u64>>());
+    assert_eq!(ingest.wait_exit(Duration::from_secs(10)), Some(0));
+    assert!(
+        !ingest.stderr_so_far().contains("did not take frame"),
+        "{}",
+        ingest.stderr_so_far()
+    );
+    std::thread::sleep(Duration::from_millis(1100));
+    let h = health.latest().unwrap().expect("inference health");
+    assert_eq!(h.skipped, 0, "{h:?}");
+}

@@ -30,6 +30,8 @@
 //! file = "run.mcap"          # mcap: relative to this file
 //! topic = "/camera/image_raw" # mcap: the channel to play
 //! speed = 1.0                # mcap: 2.0 plays twice as fast
+//! pace_by = ""               # as fast as a consumer takes frames: e.g. "perception/front/navigability"
+//! pace_timeout_s = 2.0       # with pace_by: publish the next frame anyway after this long
 //!
 //! [cameras.model]            # see farsight_interfaces::camera::CameraConfig
 //! name = "front"
@@ -86,6 +88,13 @@ pub struct CameraEntry {
     pub topic: String,
     #[serde(default = "one_f64")]
     pub speed: f64,
+    /// Lock-step with a consumer: publish the next frame only after a message
+    /// derived from the previous one appears on this topic (e.g.
+    /// `perception/front/navigability`), or after `pace_timeout_s`.
+    #[serde(default)]
+    pub pace_by: String,
+    #[serde(default = "two")]
+    pub pace_timeout_s: f64,
     pub model: CameraConfig,
 }
 
@@ -97,6 +106,9 @@ fn ten() -> f64 {
 }
 fn one() -> u32 {
     1
+}
+fn two() -> f64 {
+    2.0
 }
 fn one_f64() -> f64 {
     1.0
@@ -123,6 +135,8 @@ impl Default for IngestConfig {
                 file: String::new(),
                 topic: String::new(),
                 speed: 1.0,
+                pace_by: String::new(),
+                pace_timeout_s: 2.0,
                 model: CameraConfig {
                     name: "front".into(),
                     id: None,
@@ -166,6 +180,21 @@ impl Validate for IngestConfig {
                 &c.model.name,
                 "a name used once",
             )?;
+            if !c.pace_by.is_empty() {
+                let kind = farsight_interfaces::topics::kind_of(&c.pace_by);
+                ConfigError::check(
+                    matches!(kind, Some(farsight_interfaces::topics::TopicKind::Image)),
+                    &key("pace_by"),
+                    &c.pace_by,
+                    "an image topic derived from this camera's frames (e.g. perception/<camera>/navigability)",
+                )?;
+                ConfigError::check(
+                    c.pace_timeout_s > 0.0,
+                    &key("pace_timeout_s"),
+                    c.pace_timeout_s,
+                    "a positive time in seconds",
+                )?;
+            }
             match c.source.as_str() {
                 "folder" => {
                     ConfigError::check(

@@ -316,6 +316,23 @@ fn run() -> Result<()> {
     let clock = WallClock;
     let mut seq = vec![0u64; cameras.len()];
     let mut ended = 0;
+    // Lock-step pacing: the consumer's output topic per camera, if configured.
+    let pacers = config
+        .cameras
+        .iter()
+        .map(|c| {
+            if c.pace_by.is_empty() {
+                return Ok(None);
+            }
+            let topic = farsight_interfaces::topics::Topic::new(c.pace_by.as_str())
+                .map_err(anyhow::Error::from)?;
+            Ok(Some((
+                bus.slice_subscriber::<ImageHeader, u8>(&topic)?,
+                Duration::from_secs_f64(c.pace_timeout_s),
+            )))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let mut pace_timeouts = 0u64;
     loop {
         // SIGTERM/SIGINT: iceoryx2's signal handling reports it through the node.
         if bus.node().wait(Duration::ZERO).is_err() {
@@ -332,6 +349,25 @@ fn run() -> Result<()> {
                 depth,
             }) => {
                 health.input();
+                if let (Some((consumer, timeout)), true) = (&pacers[camera], seq[camera] > 0) {
+                    // Wait for the consumer's result for the previous frame.
+                    let waiting_since = Instant::now();
+                    let mut done = false;
+                    while !done && waiting_since.elapsed() < *timeout {
+                        match consumer.latest() {
+                            Ok(Some(s)) if s.header().stamp.frame_seq >= seq[camera] => done = true,
+                            Ok(_) => std::thread::sleep(Duration::from_millis(1)),
+                            Err(e) => {
+                                health.dropped(&e);
+                                break;
+                            }
+                        }
+                    }
+                    if !done {
+                        pace_timeouts += 1;
+                        tracing::warn!(pace_timeouts, camera = %cameras[camera].name, "consumer did not take frame {} in time", seq[camera]);
+                    }
+                }
                 seq[camera] += 1;
                 let cam = &cameras[camera];
                 let stamp = Stamp::new(seq[camera], capture_time_ns.unwrap_or(now));
