@@ -5,7 +5,7 @@
 use farsight_interfaces::camera::Camera;
 use farsight_interfaces::msg::{ImageHeader, PixelEncoding, Stamp};
 use farsight_interfaces::topics;
-use farsight_tests::{repo_root, Namespace, Proc};
+use farsight_tests::{repo_root, Namespace};
 use std::time::{Duration, Instant};
 
 fn model(name: &str, w: u32, h: u32, yaw: f64) -> String {
@@ -124,13 +124,7 @@ fn a_missing_v4l2_camera_stops_the_stage_with_a_clear_error() {
             model("front", 640, 480, 0.0)
         ),
     );
-    let mut p = Proc::start(
-        "farsight-camera-ingest",
-        &["--config", cfg.to_str().unwrap()],
-        &ns,
-    );
-    assert_eq!(p.wait_exit(Duration::from_secs(10)), Some(1));
-    let err = p.stderr_so_far();
+    let err = ns.start_must_fail("farsight-camera-ingest", &cfg);
     assert!(
         err.contains("camera front: V4L2 device /dev/video-farsight-absent does not exist: is the camera connected?"),
         "{err}"
@@ -340,13 +334,7 @@ fn asking_for_a_topic_the_recording_lacks_names_the_ones_it_has() {
             model("front", 2, 1, 0.0)
         ),
     );
-    let mut p = Proc::start(
-        "farsight-camera-ingest",
-        &["--config", cfg.to_str().unwrap()],
-        &ns,
-    );
-    assert_eq!(p.wait_exit(Duration::from_secs(10)), Some(1));
-    let err = p.stderr_so_far();
+    let err = ns.start_must_fail("farsight-camera-ingest", &cfg);
     assert!(
         err.contains("no topic /right/image in")
             && err.contains("/left/image (cdr, sensor_msgs/msg/Image)"),

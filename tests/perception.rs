@@ -5,7 +5,7 @@
 
 use farsight_interfaces::msg::PixelEncoding;
 use farsight_interfaces::topics;
-use farsight_tests::{repo_root, Namespace};
+use farsight_tests::{navigable_fraction, repo_root, Namespace, ORFD_ROAD_AHEAD, ORFD_SKY};
 use std::time::{Duration, Instant};
 
 #[test]
@@ -44,19 +44,10 @@ fn twinlitenet_stage_marks_the_orfd_road_navigable() {
             assert_eq!(h.encoding, PixelEncoding::MONO8);
             h.validate(s.data().len()).unwrap();
             let (w, hgt) = (h.width as usize, h.height as usize);
-            let frac = |x0: f64, x1: f64, y0: f64, y1: f64| {
-                let mut n = 0;
-                let mut t = 0;
-                for y in (y0 * hgt as f64) as usize..(y1 * hgt as f64) as usize {
-                    for x in (x0 * w as f64) as usize..(x1 * w as f64) as usize {
-                        t += 1;
-                        n += (s.data()[y * w + x] == 255) as usize;
-                    }
-                }
-                n as f64 / t as f64
-            };
-            let road = frac(0.25, 0.45, 0.80, 0.97);
-            let sky = frac(0.0, 1.0, 0.0, 0.12);
+            let (road_x, road_y) = ORFD_ROAD_AHEAD;
+            let (sky_x, sky_y) = ORFD_SKY;
+            let road = navigable_fraction(s.data(), w, hgt, road_x, road_y);
+            let sky = navigable_fraction(s.data(), w, hgt, sky_x, sky_y);
             assert!(
                 road > 0.8 && sky < 0.02,
                 "frame {}: road {road:.2}, sky {sky:.2}",
@@ -186,14 +177,7 @@ fn depth_normals_stage_marks_the_orfd_road_navigable() {
             let h = *s.header();
             let (w, hh) = (h.width as usize, h.height as usize);
             assert_eq!((w, hh), (1280, 720));
-            let (mut n, mut t) = (0, 0);
-            for y in (0.80 * hh as f64) as usize..(0.97 * hh as f64) as usize {
-                for x in (0.25 * w as f64) as usize..(0.45 * w as f64) as usize {
-                    t += 1;
-                    n += (s.data()[y * w + x] == 255) as usize;
-                }
-            }
-            let road = n as f64 / t as f64;
+            let road = navigable_fraction(s.data(), w, hh, ORFD_ROAD_AHEAD.0, ORFD_ROAD_AHEAD.1);
             assert!(
                 road > 0.8,
                 "frame {}: road ahead {road:.2} navigable",

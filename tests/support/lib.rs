@@ -80,6 +80,21 @@ impl Namespace {
         p
     }
 
+    /// Starts a stage that must refuse to start; returns what it wrote to stderr.
+    pub fn start_must_fail(&self, binary: &str, config: &std::path::Path) -> String {
+        let mut p = Proc::start(
+            binary,
+            &["--config", config.to_str().expect("utf-8 path")],
+            self,
+        );
+        assert_eq!(
+            p.wait_exit(Duration::from_secs(10)),
+            Some(1),
+            "{binary} should have failed at start-up"
+        );
+        p.stderr_so_far()
+    }
+
     /// `Proc::start` that waits for the stage's `<name> ready` line.
     pub fn start_stage(&self, binary: &str, stage: &str, config: &std::path::Path) -> Proc {
         let p = Proc::start(
@@ -93,6 +108,24 @@ impl Namespace {
         p
     }
 }
+
+/// Fraction of navigable (255) pixels of a `w` x `h` mask inside a box given as
+/// fractions of the image: `x = (left, right)`, `y = (top, bottom)`.
+pub fn navigable_fraction(mask: &[u8], w: usize, h: usize, x: (f64, f64), y: (f64, f64)) -> f64 {
+    let (mut n, mut total) = (0usize, 0usize);
+    for row in (y.0 * h as f64) as usize..(y.1 * h as f64) as usize {
+        for col in (x.0 * w as f64) as usize..(x.1 * w as f64) as usize {
+            total += 1;
+            n += (mask[row * w + col] == 255) as usize;
+        }
+    }
+    n as f64 / total.max(1) as f64
+}
+
+/// The box of the ORFD frames where the dirt road lies ahead of the vehicle.
+pub const ORFD_ROAD_AHEAD: ((f64, f64), (f64, f64)) = ((0.25, 0.45), (0.80, 0.97));
+/// The top rows of the ORFD frames: sky.
+pub const ORFD_SKY: ((f64, f64), (f64, f64)) = ((0.0, 1.0), (0.0, 0.12));
 
 /// The repository root (tests read ../shared relative to it).
 pub fn repo_root() -> PathBuf {

@@ -106,18 +106,7 @@ impl RayTable {
     }
 }
 
-/// Per-pixel ground test before clean-up: 1 = ground.
-pub fn ground_by_normals(
-    depth_m: &[f32],
-    width: usize,
-    height: usize,
-    camera: &Camera,
-    cfg: &NormalsConfig,
-) -> Vec<u8> {
-    ground_with_rays(depth_m, &RayTable::new(camera, width, height), cfg)
-}
-
-/// [`ground_by_normals`] with a prepared ray table.
+/// Per-pixel ground test before clean-up (1 = ground), POVNav eq. 3-5.
 pub fn ground_with_rays(depth_m: &[f32], table: &RayTable, cfg: &NormalsConfig) -> Vec<u8> {
     let (width, height) = (table.width, table.height);
     let rot = table.camera.mount.robot_from_optical;

@@ -16,16 +16,7 @@ fn orfd_camera() -> Camera {
     )
 }
 
-fn fraction(nav: &[u8], w: usize, h: usize, x: (f64, f64), y: (f64, f64)) -> f64 {
-    let (mut n, mut t) = (0, 0);
-    for v in (y.0 * h as f64) as usize..(y.1 * h as f64) as usize {
-        for u in (x.0 * w as f64) as usize..(x.1 * w as f64) as usize {
-            t += 1;
-            n += (nav[v * w + u] == 255) as usize;
-        }
-    }
-    n as f64 / t as f64
-}
+use farsight_tests::navigable_fraction as fraction;
 
 #[test]
 fn orfd_road_ahead_is_ground() {

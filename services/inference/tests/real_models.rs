@@ -42,16 +42,7 @@ fn run(config: &ModelConfig, header: &ImageHeader, frame: &[u8]) -> Result<Perce
 
 /// Fraction of navigable pixels in a box given as fractions of the image.
 fn navigable_fraction(p: &Perception, x: (f64, f64), y: (f64, f64)) -> f64 {
-    let nav = p.navigability.as_ref().unwrap();
-    let (w, h) = (p.width as f64, p.height as f64);
-    let (mut n, mut total) = (0, 0);
-    for row in (y.0 * h) as usize..(y.1 * h) as usize {
-        for col in (x.0 * w) as usize..(x.1 * w) as usize {
-            total += 1;
-            n += (nav[row * p.width + col] == 255) as usize;
-        }
-    }
-    n as f64 / total as f64
+    farsight_tests::navigable_fraction(p.navigability.as_ref().unwrap(), p.width, p.height, x, y)
 }
 
 #[test]
