@@ -1,0 +1,11 @@
+//! # farsight-subgoal-selection
+//!
+//! Picks where the robot should head next, from perception in image space:
+//!
+//! - [`povnav`]: POVNav (sections 4.3-4.7): visual horizon of the navigability
+//!   image, peripheral optic goal, Pareto-optimal horizon optic goal, the visual
+//!   path of Algorithm 1 and the proximity/alignment servo features.
+//!
+//! Plain functions over plain data; the stage binary wires them to the bus.
+
+pub mod povnav;

@@ -1,0 +1,608 @@
+//! POVNav: Pareto-optimal visual navigation in image space (sections 4.3-4.7).
+//!
+//! Planning frame (the paper's Fig. 3): origin at the bottom-centre pixel (the
+//! robot), x up the image, y to the left. Angles are counter-clockwise (REP-103):
+//! positive means left of straight ahead.
+//!
+//! ```
+//! use farsight_subgoal_selection::povnav::{plan, PovnavConfig};
+//!
+//! // 40x30 navigability image: all navigable below row 10.
+//! let (w, h) = (40, 30);
+//! let nav: Vec<u8> = (0..w * h).map(|i| if i / w >= 10 { 255 } else { 0 }).collect();
+//! let cfg = PovnavConfig::default();
+//! let half_width = vec![2usize; h]; // safe half-width per row, pixels
+//! let p = plan(&nav, w, h, 0.0, &half_width, &cfg);
+//! assert_eq!(p.hog_px, (20.0, 10.0)); // straight ahead, at the horizon
+//! ```
+
+use farsight_stage::{ConfigError, Validate};
+use serde::{Deserialize, Serialize};
+use std::f64::consts::{FRAC_PI_2, PI};
+
+/// POVNav's parameters (defaults from the paper and its code).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PovnavConfig {
+    /// Column clean-up: a non-navigable run shorter than this (pixels) is noise.
+    pub min_obstacle_px: usize,
+    /// Horizon clean-up: a morphological opening of the horizon profile over
+    /// this many columns removes narrow "cracks" that see far.
+    pub opening_columns: usize,
+    /// Weight of the navigation objective (angle deviation / pi).
+    pub w_navigation: f64,
+    /// Weight of the exploration objective (distance / image diagonal).
+    pub w_exploration: f64,
+    /// Rows between visual path points.
+    pub path_row_step: usize,
+    /// Largest look-ahead radius for the alignment feature (pixels);
+    /// R = min(lambda / 2, max_lookahead_px) as the paper's section 4.8.
+    pub max_lookahead_px: f64,
+}
+
+impl Default for PovnavConfig {
+    fn default() -> Self {
+        Self {
+            min_obstacle_px: 3,
+            opening_columns: 5,
+            w_navigation: 1.0,
+            w_exploration: 0.5,
+            path_row_step: 4,
+            max_lookahead_px: 120.0,
+        }
+    }
+}
+
+impl Validate for PovnavConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        ConfigError::check(
+            self.min_obstacle_px >= 1,
+            "povnav.min_obstacle_px",
+            self.min_obstacle_px,
+            "1 or more",
+        )?;
+        ConfigError::check(
+            self.opening_columns % 2 == 1,
+            "povnav.opening_columns",
+            self.opening_columns,
+            "an odd number of columns",
+        )?;
+        ConfigError::check(
+            self.w_navigation >= 0.0 && self.w_exploration >= 0.0,
+            "povnav.w_navigation/w_exploration",
+            format!("{}/{}", self.w_navigation, self.w_exploration),
+            "non-negative weights",
+        )?;
+        ConfigError::check(
+            self.path_row_step >= 1,
+            "povnav.path_row_step",
+            self.path_row_step,
+            "1 or more",
+        )?;
+        ConfigError::check(
+            self.max_lookahead_px > 0.0,
+            "povnav.max_lookahead_px",
+            self.max_lookahead_px,
+            "a positive radius",
+        )
+    }
+}
+
+/// The visual horizon: per column, how many pixels from the bottom are
+/// navigable and connected to the robot (0 = the bottom pixel is blocked).
+#[derive(Debug, Clone, PartialEq)]
+pub struct VisualHorizon {
+    pub width: usize,
+    pub height: usize,
+    pub navigable_rows: Vec<usize>,
+}
+
+impl VisualHorizon {
+    /// Image row of the topmost navigable pixel of column `u`, if any.
+    pub fn top_row(&self, u: usize) -> Option<usize> {
+        let n = self.navigable_rows[u];
+        (n > 0).then(|| self.height - n)
+    }
+}
+
+/// Computes the visual horizon (Definition 3) of a navigability image
+/// (255 = navigable): each column is scanned up from the bottom until a
+/// non-navigable run of `min_obstacle_px` (shorter runs are noise), then the
+/// column profile is opened over `opening_columns` so a crack one or two
+/// pixels wide cannot pull the horizon to the sky. Both are 1-D versions of
+/// the paper's morphological clean-up, cheap enough for every frame.
+pub fn visual_horizon(
+    nav: &[u8],
+    width: usize,
+    height: usize,
+    cfg: &PovnavConfig,
+) -> VisualHorizon {
+    let mut rows = vec![0usize; width];
+    for (u, r) in rows.iter_mut().enumerate() {
+        let mut run = 0;
+        let mut top = 0; // navigable rows counted from the bottom
+        for k in 0..height {
+            let v = height - 1 - k;
+            if nav[v * width + u] == 255 {
+                run = 0;
+                top = k + 1;
+            } else {
+                run += 1;
+                if run >= cfg.min_obstacle_px {
+                    break;
+                }
+            }
+        }
+        *r = top;
+    }
+    // Opening = erosion (min) then dilation (max) over the window.
+    let k = cfg.opening_columns / 2;
+    if k > 0 && width > 1 {
+        let window = |src: &[usize], pick: fn(usize, usize) -> usize| -> Vec<usize> {
+            (0..width)
+                .map(|u| {
+                    let lo = u.saturating_sub(k);
+                    let hi = (u + k).min(width - 1);
+                    src[lo..=hi].iter().copied().reduce(pick).unwrap_or(0)
+                })
+                .collect()
+        };
+        let eroded = window(&rows, usize::min);
+        rows = window(&eroded, usize::max);
+    }
+    VisualHorizon {
+        width,
+        height,
+        navigable_rows: rows,
+    }
+}
+
+/// Planning-frame coordinates (x up, y left, pixels) of image pixel (u, v).
+pub fn to_plan(u: f64, v: f64, width: usize, height: usize) -> (f64, f64) {
+    let u0 = (width as f64 - 1.0) / 2.0;
+    ((height as f64 - 1.0) - v, u0 - u)
+}
+
+/// Image pixel (u, v) of planning-frame coordinates.
+pub fn to_image(x: f64, y: f64, width: usize, height: usize) -> (f64, f64) {
+    let u0 = (width as f64 - 1.0) / 2.0;
+    (u0 - y, (height as f64 - 1.0) - x)
+}
+
+/// The peripheral optic goal (section 4.3): the image-border pixel for goal
+/// bearing `theta` (robot frame, counter-clockwise, any angle). Goals ahead map
+/// to the left, top and right borders; goals behind map onto the bottom border
+/// through the mirrored virtual borders, saturating at the bottom corners. A
+/// goal exactly behind maps to the start pixel.
+pub fn peripheral_optic_goal(theta: f64, width: usize, height: usize) -> (f64, f64) {
+    let theta = (theta + PI).rem_euclid(2.0 * PI) - PI; // (-pi, pi]
+    let top = height as f64 - 1.0;
+    let left = (width as f64 - 1.0) / 2.0; // y of the left border; the right one is -left
+    let (c, s) = (theta.cos(), theta.sin());
+    // Ray from the origin to the (possibly mirrored) border rectangle
+    // x in [-top, top], y in [-left, left]: first exit along (c, s).
+    let tx = if c.abs() > 1e-12 {
+        top / c.abs()
+    } else {
+        f64::INFINITY
+    };
+    let ty = if s.abs() > 1e-12 {
+        left / s.abs()
+    } else {
+        f64::INFINITY
+    };
+    let t = tx.min(ty);
+    let (x, y) = (c * t, s * t);
+    let (x, y) = if c >= -1e-12 {
+        (x.max(0.0), y)
+    } else {
+        // Behind: project the virtual border point back onto the bottom edge.
+        (0.0, y)
+    };
+    let (u, v) = to_image(x, y.clamp(-left, left), width, height);
+    // The POG is a border pixel.
+    (
+        u.round().clamp(0.0, width as f64 - 1.0),
+        v.round().clamp(0.0, top),
+    )
+}
+
+/// What POVNav decided for one navigability image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PovnavPlan {
+    pub pog_px: (f64, f64),
+    pub hog_px: (f64, f64),
+    /// The visual path from the start to the HOG, image pixels.
+    pub path_px: Vec<(f64, f64)>,
+    /// Proximity feature lambda (pixels, Definition 8).
+    pub proximity_px: f64,
+    /// Alignment feature phi (radians, counter-clockwise, Definition 9).
+    pub alignment_rad: f64,
+    pub mode: Mode,
+}
+
+/// POVNav's operating mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    /// A safe visual path to the HOG exists.
+    Safe,
+    /// Part of the path could not keep the safe width (narrow gap, Fig. 7d).
+    Fallback,
+    /// Nothing navigable ahead (Fig. 7c): the HOG collapses to the start.
+    Blocked,
+}
+
+fn angle_of(x: f64, y: f64) -> f64 {
+    y.atan2(x)
+}
+
+/// Runs POVNav on one navigability image. `goal_bearing_rad` is the goal
+/// direction in the robot frame; `half_width_px[v]` the safe half-width of the
+/// robot footprint at image row `v` (see [`safe_half_widths`]).
+pub fn plan(
+    nav: &[u8],
+    width: usize,
+    height: usize,
+    goal_bearing_rad: f64,
+    half_width_px: &[usize],
+    cfg: &PovnavConfig,
+) -> PovnavPlan {
+    let horizon = visual_horizon(nav, width, height, cfg);
+    let pog = peripheral_optic_goal(goal_bearing_rad, width, height);
+    let (pxg, pyg) = to_plan(pog.0, pog.1, width, height);
+    // A POG at the start (goal exactly behind) has no direction: turn left.
+    let theta_g = if pxg.hypot(pyg) < 0.5 {
+        FRAC_PI_2
+    } else {
+        angle_of(pxg, pyg)
+    };
+    let diag = (width as f64).hypot(height as f64);
+
+    // Horizon optic goal: the best horizon pixel whose footprint is navigable
+    // (Lemma 1: Pareto-optimal subgoals lie on the horizon).
+    let mut best: Option<((f64, f64), f64)> = None;
+    let mut consider = |u: usize, v: usize| {
+        let hw = half_width_px.get(v).copied().unwrap_or(0);
+        let lo = u.saturating_sub(hw);
+        let hi = (u + hw).min(width - 1);
+        if nav[v * width + lo..=v * width + hi]
+            .iter()
+            .any(|&p| p != 255)
+        {
+            return;
+        }
+        let (x, y) = to_plan(u as f64, v as f64, width, height);
+        let dist = x.hypot(y);
+        let ang = if dist < 0.5 { theta_g } else { angle_of(x, y) };
+        let cost = cfg.w_navigation * (ang - theta_g).abs() / PI - cfg.w_exploration * dist / diag;
+        if best.is_none_or(|(_, c)| cost < c) {
+            best = Some(((u as f64, v as f64), cost));
+        }
+    };
+    for u in 0..width {
+        if let Some(v) = horizon.top_row(u) {
+            consider(u, v);
+        }
+    }
+    // The side borders below the horizon belong to the horizon too.
+    for u in [0, width - 1] {
+        if let Some(top) = horizon.top_row(u) {
+            for v in top..height {
+                consider(u, v);
+            }
+        }
+    }
+    let start = ((width as f64 - 1.0) / 2.0, height as f64 - 1.0);
+    let Some((hog, _)) = best else {
+        // Fig. 7c: nothing navigable. The HOG collapses to the start; the
+        // proximity drops to zero and the robot aligns with the POG.
+        return PovnavPlan {
+            pog_px: pog,
+            hog_px: start,
+            path_px: vec![start],
+            proximity_px: 0.0,
+            alignment_rad: theta_g,
+            mode: Mode::Blocked,
+        };
+    };
+
+    // Proximity (Definition 8): nearest horizon pixel to the start.
+    let mut proximity = f64::INFINITY;
+    for u in 0..width {
+        let n = horizon.navigable_rows[u];
+        let v = (height - n).min(height - 1) as f64;
+        let (x, y) = to_plan(u as f64, v, width, height);
+        proximity = proximity.min(x.hypot(y));
+        if (u == 0 || u == width - 1) && n > 0 {
+            // Side border below the horizon: nearest is its bottom pixel.
+            let (x, y) = to_plan(u as f64, height as f64 - 1.0, width, height);
+            proximity = proximity.min(x.hypot(y));
+        }
+    }
+
+    let (path, mode) = visual_path(nav, width, height, hog, half_width_px, cfg.path_row_step);
+    // Alignment (Definition 9): direction to the path point at radius R.
+    let r = (proximity / 2.0).min(cfg.max_lookahead_px).max(1.0);
+    let target = path
+        .iter()
+        .map(|&(u, v)| to_plan(u, v, width, height))
+        .find(|&(x, y)| x.hypot(y) >= r)
+        .or_else(|| path.last().map(|&(u, v)| to_plan(u, v, width, height)));
+    let alignment = match target {
+        Some((x, y)) if x.hypot(y) >= 0.5 => angle_of(x, y),
+        _ => theta_g,
+    };
+    PovnavPlan {
+        pog_px: pog,
+        hog_px: hog,
+        path_px: path,
+        proximity_px: proximity,
+        alignment_rad: alignment,
+        mode,
+    }
+}
+
+/// Algorithm 1: march from the HOG toward the start, keeping the footprint's
+/// safe half-width navigable on both sides, shifting sideways when needed (the
+/// shift direction is chosen once). Rows with no safe shift are skipped and the
+/// path is marked fallback. Returns the path from the start to the HOG.
+pub fn visual_path(
+    nav: &[u8],
+    width: usize,
+    height: usize,
+    hog: (f64, f64),
+    half_width_px: &[usize],
+    row_step: usize,
+) -> (Vec<(f64, f64)>, Mode) {
+    let start_u = (width as f64 - 1.0) / 2.0;
+    let bottom = height - 1;
+    let span_ok = |u: f64, v: usize| -> bool {
+        let hw = half_width_px.get(v).copied().unwrap_or(0) as f64;
+        let lo = (u - hw).round();
+        let hi = (u + hw).round();
+        if lo < 0.0 || hi > (width - 1) as f64 {
+            return false;
+        }
+        nav[v * width + lo as usize..=v * width + hi as usize]
+            .iter()
+            .all(|&p| p == 255)
+    };
+    let (mut u, mut v) = (hog.0, hog.1.round() as usize);
+    let mut shift: Option<f64> = None;
+    let mut mode = Mode::Safe;
+    let mut path = Vec::new();
+    while v < bottom {
+        if !span_ok(u, v) {
+            if shift.is_none() {
+                // The direction with the nearest safe position at this row.
+                let reach = |dir: f64| (1..width).find(|&k| span_ok(u + dir * k as f64, v));
+                shift = match (reach(-1.0), reach(1.0)) {
+                    (Some(a), Some(b)) => Some(if a <= b { -1.0 } else { 1.0 }),
+                    (Some(_), None) => Some(-1.0),
+                    (None, Some(_)) => Some(1.0),
+                    (None, None) => None,
+                };
+            }
+            let moved = shift.and_then(|d| {
+                (1..width)
+                    .map(|k| u + d * k as f64)
+                    .find(|&x| span_ok(x, v))
+            });
+            match moved {
+                Some(x) => u = x,
+                None => {
+                    mode = Mode::Fallback;
+                    let next = (v + row_step).min(bottom);
+                    u += (start_u - u) * (next - v) as f64 / (bottom - v) as f64;
+                    v = next;
+                    continue;
+                }
+            }
+        }
+        path.push((u, v as f64));
+        let next = (v + row_step).min(bottom);
+        // Head straight for the start from here.
+        u += (start_u - u) * (next - v) as f64 / (bottom - v) as f64;
+        v = next;
+    }
+    path.push((start_u, bottom as f64));
+    path.reverse();
+    (path, mode)
+}
+
+/// Safe half-width of the robot footprint per image row, pixels, for a camera
+/// `camera_height_m` above flat ground: a ground point at row v lies at depth
+/// z = fy * h / (v - cy) (below the horizon line), where a half-width of
+/// `robot_width_m / 2 + margin_m` spans fx * that / z pixels. Rows at or above
+/// the horizon line get 0.
+pub fn safe_half_widths(
+    height: usize,
+    fx: f64,
+    fy: f64,
+    cy: f64,
+    camera_height_m: f64,
+    robot_width_m: f64,
+    margin_m: f64,
+) -> Vec<usize> {
+    let half = robot_width_m / 2.0 + margin_m;
+    (0..height)
+        .map(|v| {
+            let below = v as f64 - cy;
+            if below <= 0.0 || camera_height_m <= 0.0 {
+                0
+            } else {
+                let z = fy * camera_height_m / below;
+                (fx * half / z).round() as usize
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image(w: usize, h: usize, navigable: impl Fn(usize, usize) -> bool) -> Vec<u8> {
+        (0..w * h)
+            .map(|i| if navigable(i % w, i / w) { 255 } else { 0 })
+            .collect()
+    }
+
+    #[test]
+    fn horizon_ignores_noise_and_cracks() {
+        let (w, h) = (11, 20);
+        // Navigable below row 12; a 1-pixel noise hole at (5, 15); a crack of
+        // column 8 open to the top.
+        let nav = image(w, h, |u, v| (v >= 12 && !(u == 5 && v == 15)) || u == 8);
+        let hz = visual_horizon(&nav, w, h, &PovnavConfig::default());
+        assert_eq!(
+            hz.navigable_rows,
+            vec![8; 11],
+            "noise ignored, crack opened away"
+        );
+        let raw = visual_horizon(
+            &nav,
+            w,
+            h,
+            &PovnavConfig {
+                opening_columns: 1,
+                min_obstacle_px: 1,
+                ..Default::default()
+            },
+        );
+        assert_eq!(
+            raw.navigable_rows[5], 4,
+            "without clean-up the hole stops column 5"
+        );
+        assert_eq!(raw.navigable_rows[8], 20, "and the crack reaches the sky");
+    }
+
+    #[test]
+    fn peripheral_optic_goal_for_every_direction() {
+        let (w, h) = (41, 21); // u0 = 20, bottom row 20
+        let pog = |deg: f64| peripheral_optic_goal(deg.to_radians(), w, h);
+        assert_eq!(
+            pog(0.0),
+            (20.0, 0.0),
+            "ahead: top centre, no division by zero"
+        );
+        assert_eq!(pog(90.0), (0.0, 20.0), "left: bottom-left corner");
+        assert_eq!(pog(-90.0), (40.0, 20.0));
+        // 45 degrees left: the ray meets the top border (20 up) at 20 left -> corner (0, 0).
+        assert_eq!(pog(45.0), (0.0, 0.0));
+        // Behind-left at 135 degrees: the mirrored border meets the ray at y = 20: bottom-left corner.
+        assert_eq!(pog(135.0), (0.0, 20.0));
+        // 170 degrees: mirrored top at x = -20, y = 20 tan(10 deg) = 3.53 left of
+        // centre: bottom row, column 20 - 3.53 -> pixel 16.
+        assert_eq!(pog(170.0), (16.0, 20.0));
+        // 30 degrees: top border at y = 20 tan(30 deg) = 11.55 left -> pixel 8.
+        assert_eq!(pog(30.0), (8.0, 0.0));
+        assert_eq!(pog(180.0), (20.0, 20.0), "exactly behind: the start pixel");
+        assert_eq!(pog(-180.0), (20.0, 20.0));
+        assert_eq!(pog(540.0), pog(180.0), "any angle is wrapped");
+    }
+
+    #[test]
+    fn hog_trades_angle_for_distance() {
+        // Open ground ahead to row 5 except an obstacle straight ahead that ends
+        // the left half's view early: goal slightly right.
+        let (w, h) = (41, 31);
+        let nav = image(w, h, |u, v| v >= 5 && !(u >= 15 && u <= 25 && v < 20));
+        let cfg = PovnavConfig::default();
+        let p = plan(&nav, w, h, 0.0, &vec![1; h], &cfg);
+        assert_eq!(p.mode, Mode::Safe);
+        // Straight ahead is blocked at row 20; the HOG goes around, far up a side.
+        assert_eq!(p.hog_px.1, 5.0, "{:?}", p.hog_px);
+        assert!(p.hog_px.0 < 15.0 || p.hog_px.0 > 25.0, "{:?}", p.hog_px);
+        // Proximity: the obstacle's bottom edge, 10 rows up.
+        assert!((p.proximity_px - 10.0).abs() < 1e-9, "{}", p.proximity_px);
+        assert_eq!(
+            p.path_px.first(),
+            Some(&(20.0, 30.0)),
+            "the path starts at the robot"
+        );
+    }
+
+    #[test]
+    fn fig7_downhill_all_navigable_puts_the_hog_on_the_pog() {
+        let (w, h) = (41, 31);
+        let nav = vec![255u8; w * h];
+        for deg in [0.0f64, 30.0, -60.0] {
+            let p = plan(
+                &nav,
+                w,
+                h,
+                deg.to_radians(),
+                &vec![1; h],
+                &PovnavConfig::default(),
+            );
+            assert_eq!(p.hog_px, p.pog_px, "goal {deg}");
+            assert_eq!(p.mode, Mode::Safe);
+        }
+    }
+
+    #[test]
+    fn fig7_uphill_nothing_navigable_collapses_to_the_start() {
+        let (w, h) = (41, 31);
+        let p = plan(
+            &vec![0u8; w * h],
+            w,
+            h,
+            0.4,
+            &vec![1; h],
+            &PovnavConfig::default(),
+        );
+        assert_eq!(p.mode, Mode::Blocked);
+        assert_eq!(p.hog_px, (20.0, 30.0));
+        assert_eq!(p.proximity_px, 0.0);
+        let (x, y) = to_plan(p.pog_px.0, p.pog_px.1, w, h);
+        assert!(
+            (p.alignment_rad - y.atan2(x)).abs() < 1e-12,
+            "aligns with the POG"
+        );
+    }
+
+    #[test]
+    fn fig7_narrow_gap_gives_a_fallback_path() {
+        // A wall at rows 10..14 with a 7-pixel gap (wider than the horizon
+        // opening, so it stays open); the robot needs 9 pixels there.
+        let (w, h) = (41, 31);
+        let nav = image(w, h, |u, v| {
+            !(10..15).contains(&v) || (17..=23).contains(&u)
+        });
+        let p = plan(&nav, w, h, 0.0, &vec![4; h], &PovnavConfig::default());
+        assert_eq!(p.hog_px, (20.0, 0.0), "the goal is through the gap");
+        assert_eq!(p.mode, Mode::Fallback);
+        assert!(
+            p.path_px.iter().all(|&(_, v)| !(10.0..15.0).contains(&v)),
+            "no unsafe point in the path"
+        );
+        // A robot that fits (5 pixels) gets a safe path through the same gap.
+        let p = plan(&nav, w, h, 0.0, &vec![2; h], &PovnavConfig::default());
+        assert_eq!(p.mode, Mode::Safe);
+        assert!(p.path_px.iter().any(|&(_, v)| (10.0..15.0).contains(&v)));
+    }
+
+    #[test]
+    fn visual_path_shifts_away_from_an_obstacle_edge() {
+        // Corridor of columns 10..=30; HOG at the top near the left wall.
+        let (w, h) = (41, 21);
+        let nav = image(w, h, |u, _| (10..=30).contains(&u));
+        let (path, mode) = visual_path(&nav, w, h, (11.0, 0.0), &vec![3; h], 1);
+        assert_eq!(mode, Mode::Safe);
+        assert_eq!(path.first(), Some(&(20.0, 20.0)));
+        for &(u, _) in &path[..path.len() - 1] {
+            assert!(u - 3.0 >= 10.0 && u + 3.0 <= 30.0, "{u}");
+        }
+    }
+
+    #[test]
+    fn safe_width_grows_toward_the_bottom() {
+        // fx = fy = 400, cy = 180, camera 1 m up, 0.6 m robot + 0.2 m margin:
+        // at row 380, z = 400 * 1 / 200 = 2 m, half-width 0.5 m -> 100 px.
+        let hw = safe_half_widths(400, 400.0, 400.0, 180.0, 1.0, 0.6, 0.2);
+        assert_eq!(hw[380], 100);
+        assert_eq!(hw[180], 0, "at the horizon line");
+        assert!(hw[300] < hw[380]);
+    }
+}
