@@ -507,7 +507,7 @@ mod tests {
         // Open ground ahead to row 5 except an obstacle straight ahead that ends
         // the left half's view early: goal slightly right.
         let (w, h) = (41, 31);
-        let nav = image(w, h, |u, v| v >= 5 && !(u >= 15 && u <= 25 && v < 20));
+        let nav = image(w, h, |u, v| v >= 5 && !((15..=25).contains(&u) && v < 20));
         let cfg = PovnavConfig::default();
         let p = plan(&nav, w, h, 0.0, &vec![1; h], &cfg);
         assert_eq!(p.mode, Mode::Safe);

@@ -30,7 +30,7 @@ use farsight_stage::{ConfigError, Validate};
 use serde::{Deserialize, Serialize};
 
 /// Servo parameters (defaults from the POVNav code: |v| <= 0.5 m/s,
-/// |omega| <= 3.14 rad/s, lambda* = 50 px, stop within 0.5 m of the goal).
+/// |omega| <= pi rad/s (the reference code writes 3.14), lambda* = 50 px, stop within 0.5 m of the goal).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ServoConfig {
@@ -60,7 +60,7 @@ impl Default for ServoConfig {
             k_linear: 0.01,
             k_angular: 1.5,
             max_linear_mps: 0.5,
-            max_angular_radps: 3.14,
+            max_angular_radps: std::f64::consts::PI,
             max_linear_accel_mps2: 1.0,
             max_angular_accel_radps2: 3.0,
             max_lateral_accel_mps2: 0.0,
@@ -209,7 +209,7 @@ mod tests {
         );
         assert_eq!(
             povnav_command(1000.0, 5.0, &cfg),
-            (0.5, 3.14),
+            (0.5, std::f64::consts::PI),
             "clamped to the limits"
         );
         assert_eq!(
