@@ -8,4 +8,5 @@
 //!
 //! Plain functions over plain data; the stage binary wires them to the bus.
 
+pub mod lrn_head;
 pub mod povnav;
