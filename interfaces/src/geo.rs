@@ -161,9 +161,74 @@ impl EnuAnchor {
     }
 }
 
+/// Bearing (robot frame, counter-clockwise, radians) and distance (metres) of
+/// the goal from the robot. A GPS goal needs the ENU anchor; `None` without it
+/// or for a goal with bad coordinates.
+pub fn goal_in_robot_frame(
+    pose: &crate::msg::Pose,
+    goal: &crate::msg::NavGoal,
+    anchor: Option<&LocalEnuFrame>,
+) -> Option<(f64, f64)> {
+    use crate::msg::GoalKind;
+    let (gx, gy) = match goal.kind {
+        GoalKind::LOCAL => (goal.x_m, goal.y_m),
+        GoalKind::GPS => {
+            let p = GeoPoint::new(goal.latitude_deg, goal.longitude_deg, 0.0).ok()?;
+            let enu = anchor?.to_enu(p);
+            (enu.x, enu.y)
+        }
+        _ => return None,
+    };
+    let (dx, dy) = (gx - pose.position_m[0], gy - pose.position_m[1]);
+    if !(dx.is_finite() && dy.is_finite() && pose.yaw_rad.is_finite()) {
+        return None;
+    }
+    let bearing = dy.atan2(dx) - pose.yaw_rad;
+    let bearing = (bearing + std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI)
+        - std::f64::consts::PI;
+    Some((bearing, dx.hypot(dy)))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn goal_bearing_in_the_robot_frame() {
+        use crate::msg::{GoalKind, NavGoal, Pose};
+        // Robot at (10, 0) facing north (yaw 90 deg); goal at (0, 0): to its left, 10 m.
+        let pose = Pose {
+            position_m: [10.0, 0.0, 0.0],
+            yaw_rad: std::f64::consts::FRAC_PI_2,
+            ..Default::default()
+        };
+        let goal = NavGoal {
+            kind: GoalKind::LOCAL,
+            x_m: 0.0,
+            y_m: 0.0,
+            ..Default::default()
+        };
+        let (b, d) = goal_in_robot_frame(&pose, &goal, None).unwrap();
+        assert!((b - std::f64::consts::FRAC_PI_2).abs() < 1e-12 && (d - 10.0).abs() < 1e-12);
+        // A GPS goal needs the anchor.
+        let gps = NavGoal {
+            kind: GoalKind::GPS,
+            latitude_deg: 40.4416,
+            longitude_deg: -79.9959,
+            ..Default::default()
+        };
+        assert!(goal_in_robot_frame(&pose, &gps, None).is_none());
+        let anchor = LocalEnuFrame::new(GeoPoint::new(40.4406, -79.9959, 0.0).unwrap());
+        let origin = Pose {
+            yaw_rad: 0.0,
+            ..Default::default()
+        };
+        let (b, d) = goal_in_robot_frame(&origin, &gps, Some(&anchor)).unwrap();
+        assert!(
+            (b - std::f64::consts::FRAC_PI_2).abs() < 1e-3 && (d - 111.04).abs() < 0.3,
+            "{b} {d}"
+        );
+    }
 
     #[test]
     fn enu_axes_and_round_trip() {

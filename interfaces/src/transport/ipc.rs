@@ -397,6 +397,17 @@ impl<M: IpcMessage> Publisher<M> {
     pub fn topic(&self) -> &str {
         &self.topic
     }
+
+    /// Hands the last message to subscribers that joined since it was sent.
+    /// iceoryx2 only does this when the publisher sends or is told to, so a
+    /// publisher of rare messages (a goal, an e-stop) calls this on its tick:
+    /// a stage that restarts still learns the current goal.
+    pub fn deliver_history(&self) -> Result<(), TransportError> {
+        use iceoryx2::port::update_connections::UpdateConnections;
+        self.port
+            .update_connections()
+            .map_err(|e| ipc_err("update connections", &self.topic, e))
+    }
 }
 
 /// Receives the newest fixed-size message of one topic.

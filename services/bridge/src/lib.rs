@@ -453,6 +453,9 @@ pub struct Import {
 
 trait FixedSink {
     fn publish_bytes(&mut self, bytes: &[u8]) -> Result<(), TransportError>;
+    /// Hands the last message to stages that joined since (a restarted stage
+    /// still learns the current goal).
+    fn deliver_history(&self) -> Result<(), TransportError>;
 }
 
 struct Sink<M: IpcMessage + serde::de::DeserializeOwned>(ipc::Publisher<M>);
@@ -464,6 +467,10 @@ impl<M: IpcMessage + serde::de::DeserializeOwned> FixedSink for Sink<M> {
             source,
         })?;
         self.0.publish(&m)
+    }
+
+    fn deliver_history(&self) -> Result<(), TransportError> {
+        self.0.deliver_history()
     }
 }
 
@@ -516,6 +523,7 @@ impl Import {
     /// does not decode is counted and reported, never forwarded.
     pub fn pump(&mut self) -> Result<bool, TransportError> {
         let Some(bytes) = self.input.try_latest()? else {
+            self.sink.deliver_history()?;
             return Ok(false);
         };
         match self.sink.publish_bytes(&bytes) {

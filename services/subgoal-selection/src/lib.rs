@@ -10,3 +10,4 @@
 
 pub mod lrn_head;
 pub mod povnav;
+pub mod stage;

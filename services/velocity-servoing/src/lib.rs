@@ -25,6 +25,8 @@
 //! assert!(w > 0.0);
 //! ```
 
+pub mod stage;
+
 use farsight_interfaces::msg::CommandReason;
 use farsight_stage::{ConfigError, Validate};
 use serde::{Deserialize, Serialize};

@@ -1,0 +1,256 @@
+//! `farsight-subgoal-selection`: POVNav on the navigability image, or the LRN
+//! head on the angular bins, turned into a [`Subgoal`] for the servo stage
+//! (with the visual path and the features that explain it). Without a goal it
+//! publishes nothing, so the servo stage goes stale and the robot stays put.
+
+use anyhow::Result;
+use farsight_interfaces::camera::Camera;
+use farsight_interfaces::clock::{Clock, WallClock};
+use farsight_interfaces::fixed::FixedVec;
+use farsight_interfaces::geo::{goal_in_robot_frame, EnuAnchor, GeoPoint};
+use farsight_interfaces::msg::*;
+use farsight_interfaces::topics;
+use farsight_interfaces::transport::ipc::{self, Bus, Wake};
+use farsight_stage::{load_config, Health, StageArgs};
+use farsight_subgoal_selection::lrn_head::LrnHead;
+use farsight_subgoal_selection::povnav::{plan, safe_half_widths, Mode};
+use farsight_subgoal_selection::stage::SubgoalStageConfig;
+use std::ops::ControlFlow;
+use std::time::Duration;
+
+const STAGE: &str = "subgoal-selection";
+
+fn main() {
+    if let Err(e) = run() {
+        tracing::error!("{e:#}");
+        eprintln!("farsight-{STAGE}: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+/// Where a pixel's ray meets flat ground, in the robot frame (x ahead, y left).
+fn ground_point(camera: &Camera, u: f64, v: f64) -> Option<(f64, f64)> {
+    let r = camera.pixel_ray_robot(u, v);
+    let h = camera.mount.height_m();
+    (r.z < -1e-6 && h > 0.0).then(|| {
+        let t = h / -r.z;
+        (
+            camera.mount.translation_m.x + t * r.x,
+            camera.mount.translation_m.y + t * r.y,
+        )
+    })
+}
+
+fn run() -> Result<()> {
+    let args = StageArgs::parse(STAGE)?;
+    farsight_stage::init_tracing(args.log_format);
+    let config: SubgoalStageConfig = load_config(args.config.as_deref())?;
+    let mut anchor = match (config.anchor_latitude_deg, config.anchor_longitude_deg) {
+        (Some(lat), Some(lon)) => EnuAnchor::configured(GeoPoint::new(lat, lon, 0.0)?),
+        _ => EnuAnchor::default(),
+    };
+    let povnav = config.method == "povnav";
+    let bus = Bus::open(STAGE)?;
+    let nav = bus.slice_subscriber(&topics::navigability(&config.camera))?;
+    let bins = bus.subscriber(&topics::angular_bins())?;
+    let infos = bus.subscriber(&topics::camera_info(&config.camera))?;
+    let poses = bus.subscriber(&topics::pose())?;
+    let goals = bus.subscriber(&topics::goal())?;
+    let subgoals = bus.publisher(&topics::subgoal())?;
+    let visual_path = bus.publisher(&topics::path("visual"))?;
+    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
+    farsight_stage::announce_ready(STAGE);
+
+    let clock = WallClock;
+    let (mut camera, mut pose, mut goal): (Option<Camera>, Option<Pose>, Option<NavGoal>) =
+        (None, None, None);
+    let mut half_widths: Option<((u32, u32), Vec<usize>)> = None;
+    let mut head = LrnHead::default();
+    let mut lrn_cfg = config.lrn;
+    lrn_cfg.goal_heuristic |= config.method == "goal_heuristic";
+    let input = if povnav {
+        nav.listener()
+    } else {
+        bins.listener()
+    };
+    ipc::wait_loop(&[input], Some(Duration::from_millis(200)), |wake| {
+        let now = clock.now_ns();
+        if let Ok(Some(i)) = infos.latest() {
+            match Camera::from_info(&i) {
+                Ok(c) => camera = Some(c),
+                Err(e) => health.dropped(&format_args!("camera info: {e}")),
+            }
+        }
+        if let Ok(Some(p)) = poses.latest() {
+            if p.gps.valid == 1 {
+                if let Ok(fix) =
+                    GeoPoint::new(p.gps.latitude_deg, p.gps.longitude_deg, p.gps.altitude_m)
+                {
+                    anchor.observe_fix(fix);
+                }
+            }
+            pose = Some(p);
+        }
+        if let Ok(Some(g)) = goals.latest() {
+            goal = Some(g);
+        }
+        health.tick(now);
+        if wake == Wake::Tick {
+            return ControlFlow::Continue(());
+        }
+        let target = match (&pose, &goal) {
+            (Some(p), Some(g)) => goal_in_robot_frame(p, g, anchor.frame()),
+            _ => None,
+        };
+        if povnav {
+            let Ok(Some(frame)) = nav.latest() else {
+                return ControlFlow::Continue(());
+            };
+            health.input();
+            let h = *frame.header();
+            let Some((bearing, _)) = target else {
+                health.set(
+                    HealthState::DEGRADED,
+                    "no goal (or pose) yet: no subgoal published",
+                );
+                return ControlFlow::Continue(());
+            };
+            let Some(cam) = &camera else {
+                health.dropped(&"no camera model yet on camera/<name>/info");
+                return ControlFlow::Continue(());
+            };
+            if let Err(e) = h.validate(frame.data().len()) {
+                health.dropped(&e);
+                return ControlFlow::Continue(());
+            }
+            if h.encoding != PixelEncoding::MONO8 {
+                health.dropped(&format_args!(
+                    "navigability must be mono8, got {}",
+                    h.encoding
+                ));
+                return ControlFlow::Continue(());
+            }
+            let size = (h.width, h.height);
+            if half_widths.as_ref().is_none_or(|(s, _)| *s != size) {
+                let m = cam.model.scaled_to(h.width, h.height);
+                let hw = safe_half_widths(
+                    h.height as usize,
+                    m.fx,
+                    m.fy,
+                    m.cy,
+                    cam.mount.height_m(),
+                    config.robot_width_m,
+                    config.safety_margin_m,
+                );
+                half_widths = Some((size, hw));
+            }
+            let hw = &half_widths.as_ref().expect("just set").1;
+            let p = plan(
+                frame.data(),
+                h.width as usize,
+                h.height as usize,
+                bearing,
+                hw,
+                &config.povnav,
+            );
+            let scaled = Camera {
+                model: cam.model.scaled_to(h.width, h.height),
+                ..cam.clone()
+            };
+            let (gx, gy) =
+                ground_point(&scaled, p.hog_px.0, p.hog_px.1).unwrap_or((f64::NAN, f64::NAN));
+            let mode = match p.mode {
+                Mode::Safe => ServoMode::SAFE,
+                Mode::Fallback => ServoMode::FALLBACK,
+                Mode::Blocked => ServoMode::BLOCKED,
+            };
+            let subgoal = Subgoal {
+                stamp: h.stamp,
+                source: SubgoalSource::POVNAV,
+                mode,
+                heading_rad: p.alignment_rad as f32,
+                x_m: gx as f32,
+                y_m: gy as f32,
+                image_u_px: p.hog_px.0 as f32,
+                image_v_px: p.hog_px.1 as f32,
+                proximity_lambda_px: p.proximity_px as f32,
+                alignment_phi_rad: p.alignment_rad as f32,
+            };
+            let points: Vec<[f32; 2]> = p
+                .path_px
+                .iter()
+                .map(|&(u, v)| [u as f32, v as f32])
+                .collect();
+            let path = Path {
+                stamp: h.stamp,
+                frame: PathFrame::IMAGE,
+                camera_id: h.camera_id,
+                points: FixedVec::from_slice(&points[..points.len().min(MAX_PATH_POINTS)])
+                    .unwrap_or_default(),
+            };
+            match subgoals
+                .publish(&subgoal)
+                .and_then(|()| visual_path.publish(&path))
+            {
+                Ok(()) => {
+                    health.set(HealthState::OK, "");
+                    health.output(h.stamp, clock.now_ns());
+                }
+                Err(e) => health.dropped(&e),
+            }
+        } else {
+            let Ok(Some(b)) = bins.latest() else {
+                return ControlFlow::Continue(());
+            };
+            health.input();
+            let Some((bearing, distance)) = target else {
+                health.set(
+                    HealthState::DEGRADED,
+                    "no goal (or pose) yet: no subgoal published",
+                );
+                return ControlFlow::Continue(());
+            };
+            let k = b.scores.len();
+            let centers: Vec<f64> = (0..k)
+                .map(|i| b.first_bin_start_rad as f64 + (i as f64 + 0.5) * b.bin_width_rad as f64)
+                .collect();
+            let scores: Vec<f64> = b.scores.as_slice().iter().map(|&s| s as f64).collect();
+            let observed: Vec<bool> = (0..k)
+                .map(|i| b.observed.as_slice().get(i).is_some_and(|&o| o == 1))
+                .collect();
+            let Some(heading) =
+                head.select(&lrn_cfg, &scores, &observed, &centers, bearing, distance)
+            else {
+                health.set(HealthState::DEGRADED, "no affordable observed bin");
+                return ControlFlow::Continue(());
+            };
+            let d = config.subgoal_distance_m.min(distance);
+            let subgoal = Subgoal {
+                stamp: b.stamp,
+                source: if lrn_cfg.goal_heuristic {
+                    SubgoalSource::GOAL_HEURISTIC
+                } else {
+                    SubgoalSource::LRN
+                },
+                mode: ServoMode::SAFE,
+                heading_rad: heading as f32,
+                x_m: (d * heading.cos()) as f32,
+                y_m: (d * heading.sin()) as f32,
+                image_u_px: f32::NAN,
+                image_v_px: f32::NAN,
+                proximity_lambda_px: f32::NAN,
+                alignment_phi_rad: f32::NAN,
+            };
+            match subgoals.publish(&subgoal) {
+                Ok(()) => {
+                    health.set(HealthState::OK, "");
+                    health.output(b.stamp, clock.now_ns());
+                }
+                Err(e) => health.dropped(&e),
+            }
+        }
+        ControlFlow::Continue(())
+    })?;
+    health.stopping(clock.now_ns());
+    Ok(())
+}

@@ -1,0 +1,90 @@
+//! The subgoal-selection stage's config (`subgoal-selection.toml`, defaults shown):
+//!
+//! ```toml
+//! method = "povnav"              # "povnav", "lrn" or "goal_heuristic"
+//! camera = "front"               # povnav: reads perception/<camera>/navigability
+//! robot_width_m = 0.8            # povnav: footprint for the safe visual path
+//! safety_margin_m = 0.2
+//! subgoal_distance_m = 25.0      # lrn: the heading becomes a subgoal this far out
+//! health_rate_hz = 1.0
+//! # anchor_latitude_deg / anchor_longitude_deg: ENU origin for GPS goals
+//!
+//! [povnav]                       # see farsight_subgoal_selection::povnav::PovnavConfig
+//! [lrn]                          # see farsight_subgoal_selection::lrn_head::LrnHeadConfig (Spot preset)
+//! ```
+
+use crate::lrn_head::LrnHeadConfig;
+use crate::povnav::PovnavConfig;
+use farsight_stage::{ConfigError, Validate};
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SubgoalStageConfig {
+    pub method: String,
+    pub camera: String,
+    pub robot_width_m: f64,
+    pub safety_margin_m: f64,
+    pub subgoal_distance_m: f64,
+    pub health_rate_hz: f64,
+    pub anchor_latitude_deg: Option<f64>,
+    pub anchor_longitude_deg: Option<f64>,
+    pub povnav: PovnavConfig,
+    pub lrn: LrnHeadConfig,
+}
+
+impl Default for SubgoalStageConfig {
+    fn default() -> Self {
+        Self {
+            method: "povnav".into(),
+            camera: "front".into(),
+            robot_width_m: 0.8,
+            safety_margin_m: 0.2,
+            subgoal_distance_m: 25.0,
+            health_rate_hz: 1.0,
+            anchor_latitude_deg: None,
+            anchor_longitude_deg: None,
+            povnav: PovnavConfig::default(),
+            lrn: LrnHeadConfig::default(),
+        }
+    }
+}
+
+impl Validate for SubgoalStageConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        ConfigError::check(
+            ["povnav", "lrn", "goal_heuristic"].contains(&self.method.as_str()),
+            "method",
+            &self.method,
+            "\"povnav\", \"lrn\" or \"goal_heuristic\"",
+        )?;
+        farsight_interfaces::topics::validate_name(&self.camera)
+            .map_err(|e| ConfigError::invalid("camera", &self.camera, e.why))?;
+        ConfigError::check(
+            self.robot_width_m > 0.0,
+            "robot_width_m",
+            self.robot_width_m,
+            "a positive width in metres",
+        )?;
+        ConfigError::check(
+            self.safety_margin_m >= 0.0,
+            "safety_margin_m",
+            self.safety_margin_m,
+            "a margin in metres",
+        )?;
+        ConfigError::check(
+            self.subgoal_distance_m > 0.0,
+            "subgoal_distance_m",
+            self.subgoal_distance_m,
+            "a positive distance",
+        )?;
+        ConfigError::check(
+            self.health_rate_hz > 0.0,
+            "health_rate_hz",
+            self.health_rate_hz,
+            "a positive rate in Hz",
+        )?;
+        self.povnav.validate()?;
+        self.lrn.validate()
+    }
+}

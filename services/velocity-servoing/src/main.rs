@@ -1,0 +1,159 @@
+//! `farsight-velocity-servoing`: publishes a velocity command at a fixed rate.
+//! Each command comes from the newest subgoal (POVNav features or a heading)
+//! through the bounded control law and the acceleration limits; a stale
+//! subgoal, an active e-stop or a reached goal give zero velocity at once, with
+//! the reason in the command and in the stage's health. An old command is
+//! never republished: every output is computed from the inputs of that moment.
+
+use anyhow::Result;
+use farsight_interfaces::clock::{Clock, InputDeadline, WallClock};
+use farsight_interfaces::geo::{goal_in_robot_frame, EnuAnchor, GeoPoint};
+use farsight_interfaces::msg::{CommandReason, HealthState, Stamp, SubgoalSource, VelocityCommand};
+use farsight_interfaces::topics;
+use farsight_interfaces::transport::ipc::{self, Bus, Wake};
+use farsight_stage::{load_config, Health, StageArgs};
+use farsight_velocity_servoing::stage::ServoStageConfig;
+use farsight_velocity_servoing::{decide, heading_command, povnav_command, Inputs, RateLimiter};
+use std::ops::ControlFlow;
+use std::time::Duration;
+
+const STAGE: &str = "velocity-servoing";
+
+fn main() {
+    if let Err(e) = run() {
+        tracing::error!("{e:#}");
+        eprintln!("farsight-{STAGE}: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run() -> Result<()> {
+    let args = StageArgs::parse(STAGE)?;
+    farsight_stage::init_tracing(args.log_format);
+    let config: ServoStageConfig = load_config(args.config.as_deref())?;
+    let mut anchor = match (config.anchor_latitude_deg, config.anchor_longitude_deg) {
+        (Some(lat), Some(lon)) => EnuAnchor::configured(GeoPoint::new(lat, lon, 0.0)?),
+        _ => EnuAnchor::default(),
+    };
+    let bus = Bus::open(STAGE)?;
+    let subgoals = bus.subscriber(&topics::subgoal())?;
+    let estops = bus.subscriber(&topics::estop())?;
+    let poses = bus.subscriber(&topics::pose())?;
+    let goals = bus.subscriber(&topics::goal())?;
+    let commands = bus.publisher(&topics::velocity_command())?;
+    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
+    farsight_stage::announce_ready(STAGE);
+
+    let clock = WallClock;
+    let mut deadline = InputDeadline::new(config.subgoal_deadline_s);
+    let (mut subgoal, mut estop, mut pose, mut goal) = (None, None, None, None);
+    let mut limiter = RateLimiter::default();
+    let period = Duration::from_secs_f64(1.0 / config.output_rate_hz);
+    let mut last_ns = clock.now_ns();
+    ipc::wait_loop(
+        &[subgoals.listener(), estops.listener()],
+        Some(period),
+        |wake| {
+            let now = clock.now_ns();
+            match subgoals.latest() {
+                Ok(Some(s)) => {
+                    health.input();
+                    deadline.seen(now);
+                    subgoal = Some(s);
+                }
+                Ok(None) => {}
+                Err(e) => health.dropped(&e),
+            }
+            if let Ok(Some(e)) = estops.latest() {
+                estop = Some(e);
+            }
+            if let Ok(Some(p)) = poses.latest() {
+                if p.gps.valid == 1 {
+                    if let Ok(fix) =
+                        GeoPoint::new(p.gps.latitude_deg, p.gps.longitude_deg, p.gps.altitude_m)
+                    {
+                        anchor.observe_fix(fix);
+                    }
+                }
+                pose = Some(p);
+            }
+            if let Ok(Some(g)) = goals.latest() {
+                goal = Some(g);
+            }
+            // Commands go out on the tick only (a fixed output rate), and an e-stop
+            // is acted on the moment it arrives.
+            let estop_now = wake == Wake::Input(1) && estop.is_some_and(|e| e.active == 1);
+            if wake != Wake::Tick && !estop_now {
+                return ControlFlow::Continue(());
+            }
+            let dt = now.saturating_sub(last_ns) as f64 * 1e-9;
+            last_ns = now;
+            let goal_distance = match (&pose, &goal) {
+                (Some(p), Some(g)) => goal_in_robot_frame(p, g, anchor.frame()).map(|(_, d)| d),
+                _ => None,
+            };
+            let inputs = Inputs {
+                subgoal_stale: deadline.is_stale(now),
+                estop_active: estop.is_some_and(|e| e.active == 1),
+                goal_distance_m: goal_distance,
+            };
+            let stamp = subgoal.map(|s| s.stamp).unwrap_or_default();
+            let cmd = match decide(&inputs, &config.servo) {
+                Some(reason) => {
+                    limiter.stop();
+                    let why = match reason {
+                        CommandReason::STALE_INPUT => match deadline.age_s(now) {
+                            Some(age) => format!(
+                                "subgoal is {age:.2} s old (deadline {} s)",
+                                config.subgoal_deadline_s
+                            ),
+                            None => "no subgoal received yet".to_string(),
+                        },
+                        CommandReason::ESTOP => "e-stop active".to_string(),
+                        _ => "goal reached".to_string(),
+                    };
+                    let state = if reason == CommandReason::GOAL_REACHED {
+                        HealthState::OK
+                    } else {
+                        HealthState::DEGRADED
+                    };
+                    health.set(state, &why);
+                    VelocityCommand::stop(stamp, reason)
+                }
+                None => {
+                    health.set(HealthState::OK, "");
+                    let s = subgoal.expect("not stale, so received");
+                    let target = if s.source == SubgoalSource::POVNAV {
+                        povnav_command(
+                            s.proximity_lambda_px as f64,
+                            s.alignment_phi_rad as f64,
+                            &config.servo,
+                        )
+                    } else {
+                        heading_command(s.heading_rad as f64, &config.servo)
+                    };
+                    let (v, w) = limiter.limit(target, dt, &config.servo);
+                    VelocityCommand {
+                        stamp: s.stamp,
+                        linear_mps: v as f32,
+                        angular_radps: w as f32,
+                        reason: CommandReason::TRACKING,
+                    }
+                }
+            };
+            match commands.publish(&cmd) {
+                Ok(()) => health.output(stamp, now),
+                Err(e) => health.dropped(&e),
+            }
+            health.tick(now);
+            ControlFlow::Continue(())
+        },
+    )?;
+    // Leave the robot stopped.
+    let _ = commands.publish(&VelocityCommand::stop(
+        Stamp::default(),
+        CommandReason::NO_SUBGOAL,
+    ));
+    health.stopping(clock.now_ns());
+    Ok(())
+}

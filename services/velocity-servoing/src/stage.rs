@@ -1,0 +1,82 @@
+//! The servo stage's config (`velocity-servoing.toml`, defaults shown):
+//!
+//! ```toml
+//! output_rate_hz = 20.0          # commands are published at this rate, always
+//! subgoal_deadline_s = 0.5       # older subgoals stop the robot
+//! health_rate_hz = 1.0
+//! # anchor_latitude_deg / anchor_longitude_deg: the ENU origin for GPS goals
+//! # (default: the first GPS fix in the pose)
+//!
+//! [servo]                        # see farsight_velocity_servoing::ServoConfig
+//! desired_proximity_px = 50.0
+//! k_linear = 0.01
+//! k_angular = 1.5
+//! max_linear_mps = 0.5
+//! max_angular_radps = 3.141592653589793
+//! max_linear_accel_mps2 = 1.0
+//! max_angular_accel_radps2 = 3.0
+//! max_lateral_accel_mps2 = 0.0   # friction circle, 0 = off
+//! allow_reverse = false
+//! goal_radius_m = 0.5
+//! ```
+
+use crate::ServoConfig;
+use farsight_stage::{ConfigError, Validate};
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServoStageConfig {
+    pub output_rate_hz: f64,
+    pub subgoal_deadline_s: f64,
+    pub health_rate_hz: f64,
+    pub anchor_latitude_deg: Option<f64>,
+    pub anchor_longitude_deg: Option<f64>,
+    pub servo: ServoConfig,
+}
+
+impl Default for ServoStageConfig {
+    fn default() -> Self {
+        Self {
+            output_rate_hz: 20.0,
+            subgoal_deadline_s: 0.5,
+            health_rate_hz: 1.0,
+            anchor_latitude_deg: None,
+            anchor_longitude_deg: None,
+            servo: ServoConfig::default(),
+        }
+    }
+}
+
+impl Validate for ServoStageConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        ConfigError::check(
+            self.output_rate_hz > 0.0 && self.output_rate_hz <= 1000.0,
+            "output_rate_hz",
+            self.output_rate_hz,
+            "0 < rate <= 1000 Hz",
+        )?;
+        ConfigError::check(
+            self.subgoal_deadline_s > 0.0,
+            "subgoal_deadline_s",
+            self.subgoal_deadline_s,
+            "a positive time in seconds",
+        )?;
+        ConfigError::check(
+            self.health_rate_hz > 0.0,
+            "health_rate_hz",
+            self.health_rate_hz,
+            "a positive rate in Hz",
+        )?;
+        ConfigError::check(
+            self.anchor_latitude_deg.is_some() == self.anchor_longitude_deg.is_some(),
+            "anchor_latitude_deg/anchor_longitude_deg",
+            format!(
+                "{:?}/{:?}",
+                self.anchor_latitude_deg, self.anchor_longitude_deg
+            ),
+            "both or neither",
+        )?;
+        self.servo.validate()
+    }
+}
