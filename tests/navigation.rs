@@ -217,3 +217,107 @@ mod graph {
         next_cmd(Duration::from_secs(30), &driving).expect("driving again once inference is back");
     }
 }
+
+/// bin-projection as a process. No LRN heatmap model exists yet (issue 9
+/// trains one), so the test process plays the inference stage and publishes
+/// constructed heatmaps for a front and a rear camera.
+mod bins {
+    use farsight_interfaces::camera::{Camera, CameraModel, Mount};
+    use farsight_interfaces::msg::*;
+    use farsight_interfaces::topics;
+    use farsight_tests::Namespace;
+    use std::time::{Duration, Instant};
+
+    #[test]
+    fn front_and_rear_heatmaps_become_angular_bins() {
+        let ns = Namespace::new("binstage");
+        let bus = ns.bus("bins-test");
+        let (w, h) = (64usize, 32usize);
+        // f = 32 px on a 64 px wide image: +-45 degrees each way.
+        let model = CameraModel::pinhole(w as u32, h as u32, 32.0, 32.0, 31.5, 15.5);
+        let front = Camera::new(
+            0,
+            "front",
+            model,
+            Mount::from_xyz_rpy_deg([0.0; 3], [0.0; 3]),
+        );
+        let rear = Camera::new(
+            1,
+            "rear",
+            model,
+            Mount::from_xyz_rpy_deg([0.0; 3], [0.0, 0.0, 180.0]),
+        );
+        let cfg = ns.write(
+            "bin-projection.toml",
+            "cameras = [\"front\", \"rear\"]\n[bins]\nbin_width_deg = 10.0\nh_thresh = 0.5\nalpha = 1.0\n",
+        );
+        let out = bus.subscriber(&topics::angular_bins()).unwrap();
+        let stage = ns.start_stage("farsight-bin-projection", "bin-projection", &cfg);
+        let infos = [&front, &rear].map(|c| bus.publisher(&topics::camera_info(&c.name)).unwrap());
+        let heats = [&front, &rear].map(|c| {
+            bus.slice_publisher(&topics::affordance_heatmap(&c.name), w * h * 4)
+                .unwrap()
+        });
+        let publish = |k: usize, cam: &Camera, heat: &dyn Fn(usize) -> f32, seq: u64| {
+            infos[k].publish(&cam.to_info(Stamp::new(seq, 0))).unwrap();
+            let values: Vec<f32> = (0..w * h).map(|i| heat(i % w)).collect();
+            let header = ImageHeader::packed(
+                Stamp::new(seq, 0),
+                cam.id,
+                w as u32,
+                h as u32,
+                PixelEncoding::F32,
+            );
+            heats[k]
+                .publish_copy(header, bytemuck_bytes(&values))
+                .unwrap();
+        };
+        // Front: hot in the right quarter of the image (robot's right, about -20..-45 deg).
+        publish(0, &front, &|u| if u >= 48 { 1.0 } else { 0.2 }, 1);
+        std::thread::sleep(Duration::from_millis(100));
+        // Rear: hot everywhere it looks.
+        publish(1, &rear, &|_| 1.0, 2);
+        let end = Instant::now() + Duration::from_secs(10);
+        let mut last = None;
+        while Instant::now() < end {
+            if let Some(b) = out.latest().unwrap() {
+                if b.stamp.frame_seq == 2 {
+                    last = Some(b);
+                    break;
+                }
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let b = last
+            .unwrap_or_else(|| panic!("no bins after both cameras:\n{}", stage.stderr_so_far()));
+        let g = farsight_bin_projection_geometry(b.bin_width_rad as f64);
+        let bin = |deg: f64| g(deg.to_radians());
+        assert_eq!(b.scores.len(), 36);
+        let s = b.scores.as_slice();
+        let o = b.observed.as_slice();
+        // Front right (-30 deg) scores, front left (+30) was below h_thresh.
+        assert!(s[bin(-30.0)] > 0.0 && s[bin(30.0)] == 0.0, "{s:?}");
+        // Straight behind scores (rear camera); the sides at +-90 deg nobody sees.
+        assert!(s[bin(179.0)] > 0.0);
+        assert_eq!(
+            (o[bin(90.0)], o[bin(-90.0)]),
+            (0, 0),
+            "unobserved, not zero"
+        );
+        assert_eq!(o[bin(0.0)], 1);
+        let total: f32 = s.iter().sum();
+        assert!((total - 1.0).abs() < 1e-4, "normalised: {total}");
+    }
+
+    fn bytemuck_bytes(v: &[f32]) -> &[u8] {
+        // SAFETY: f32 has no padding; the slice covers exactly the floats' bytes.
+        unsafe { std::slice::from_raw_parts(v.as_ptr() as *const u8, std::mem::size_of_val(v)) }
+    }
+
+    /// Bin index of a bearing for bins of `width` radians starting at -pi.
+    fn farsight_bin_projection_geometry(width: f64) -> impl Fn(f64) -> usize {
+        move |a: f64| {
+            (((a + std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI)) / width) as usize
+        }
+    }
+}
