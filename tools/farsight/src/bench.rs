@@ -29,6 +29,8 @@ pub enum BenchCommand {
     /// ORFD frames, and the frame rate the inference stage sustains fed by
     /// camera-ingest at full speed.
     Inference(InferenceArgs),
+    /// Per-frame cost of LRN bins, POVNav and the servo law at 640x360 and 1280x720.
+    Navigation(NavigationArgs),
     /// (internal) the receiving side of one cell of the transport benchmark.
     #[command(hide = true)]
     TransportReceiver(ReceiverArgs),
@@ -94,8 +96,16 @@ pub struct InferenceArgs {
     pub stage_seconds: f64,
 }
 
+#[derive(Args)]
+pub struct NavigationArgs {
+    /// Timed runs per cell.
+    #[arg(long, default_value_t = 200)]
+    pub runs: usize,
+}
+
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
+        BenchCommand::Navigation(a) => crate::bench_navigation::run(a),
         BenchCommand::Transport(a) => transport(a),
         BenchCommand::Inference(a) => crate::bench_inference::run(a),
         BenchCommand::TransportReceiver(a) => receiver(a),

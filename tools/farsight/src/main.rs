@@ -10,6 +10,7 @@
 
 mod bench;
 mod bench_inference;
+mod bench_navigation;
 mod demo;
 mod infer;
 mod probe;
