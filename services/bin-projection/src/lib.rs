@@ -61,6 +61,9 @@ impl BinGeometry {
     }
 }
 
+/// One camera's projection: per-bin score sums, and which bins it sees.
+pub type Projection = (Vec<f64>, Vec<bool>);
+
 /// Which pixel of one camera's heatmap falls in which bin (computed once per
 /// camera and heatmap size: un-projecting a fisheye is iterative).
 #[derive(Debug, Clone)]
@@ -104,7 +107,7 @@ impl CameraBins {
 
     /// Per-bin sums of the heatmap values that reach `pixel_threshold`, and
     /// which bins this camera sees at all.
-    pub fn project(&self, heatmap: &[f32], pixel_threshold: f32) -> (Vec<f64>, Vec<bool>) {
+    pub fn project(&self, heatmap: &[f32], pixel_threshold: f32) -> Projection {
         let mut sums = vec![0.0; self.count];
         let mut seen = vec![false; self.count];
         for (&b, &h) in self.bin_of_pixel.iter().zip(heatmap) {
@@ -204,7 +207,7 @@ impl LrnBins {
 
     /// Combines one projection per camera: max across cameras, threshold,
     /// normalise by the sum, EMA.
-    pub fn update(&mut self, per_camera: &[(Vec<f64>, Vec<bool>)]) -> BinScores {
+    pub fn update(&mut self, per_camera: &[Projection]) -> BinScores {
         let k = self.geometry.count;
         let mut b = vec![0.0f64; k];
         let mut observed = vec![false; k];

@@ -15,7 +15,7 @@
 //! ```
 
 use anyhow::Result;
-use farsight_bin_projection::{BinGeometry, CameraBins, LrnBins, LrnBinsConfig};
+use farsight_bin_projection::{BinGeometry, CameraBins, LrnBins, LrnBinsConfig, Projection};
 use farsight_interfaces::camera::Camera;
 use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::fixed::FixedVec;
@@ -102,7 +102,7 @@ fn run() -> Result<()> {
     let mut maps: Vec<Option<CameraBins>> = vec![None; n];
     // Each camera's latest projection and when it arrived; a camera that stops
     // sending drops out after a second instead of holding its bins forever.
-    let mut latest: Vec<Option<(u64, (Vec<f64>, Vec<bool>))>> = vec![None; n];
+    let mut latest: Vec<Option<(u64, Projection)>> = vec![None; n];
     const CAMERA_TIMEOUT_NS: u64 = 1_000_000_000;
     let mut bins = LrnBins::new(geometry, config.bins);
     let clock = WallClock;
