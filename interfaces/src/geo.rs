@@ -189,6 +189,63 @@ pub fn goal_in_robot_frame(
     Some((bearing, dx.hypot(dy)))
 }
 
+/// What a stage knows about where it is going: the latest pose and goal, and
+/// the ENU anchor (configured, or the first valid GPS fix in a pose).
+#[derive(Debug, Clone, Default)]
+pub struct GoalTracker {
+    anchor: EnuAnchor,
+    pose: Option<crate::msg::Pose>,
+    goal: Option<crate::msg::NavGoal>,
+}
+
+impl GoalTracker {
+    pub fn new(anchor: EnuAnchor) -> Self {
+        Self {
+            anchor,
+            ..Default::default()
+        }
+    }
+
+    /// A tracker anchored at the configured latitude/longitude, if both are given.
+    pub fn anchored_at(
+        latitude_deg: Option<f64>,
+        longitude_deg: Option<f64>,
+    ) -> Result<Self, GeoRangeError> {
+        Ok(match (latitude_deg, longitude_deg) {
+            (Some(lat), Some(lon)) => {
+                Self::new(EnuAnchor::configured(GeoPoint::new(lat, lon, 0.0)?))
+            }
+            _ => Self::default(),
+        })
+    }
+
+    pub fn set_pose(&mut self, pose: crate::msg::Pose) {
+        if pose.gps.valid == 1 {
+            if let Ok(fix) = GeoPoint::new(
+                pose.gps.latitude_deg,
+                pose.gps.longitude_deg,
+                pose.gps.altitude_m,
+            ) {
+                self.anchor.observe_fix(fix);
+            }
+        }
+        self.pose = Some(pose);
+    }
+
+    pub fn set_goal(&mut self, goal: crate::msg::NavGoal) {
+        self.goal = Some(goal);
+    }
+
+    /// Bearing and distance of the goal from the robot (see [`goal_in_robot_frame`]).
+    pub fn goal_in_robot_frame(&self) -> Option<(f64, f64)> {
+        goal_in_robot_frame(
+            self.pose.as_ref()?,
+            self.goal.as_ref()?,
+            self.anchor.frame(),
+        )
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

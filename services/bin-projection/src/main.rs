@@ -70,11 +70,7 @@ impl Validate for Config {
 }
 
 fn main() {
-    if let Err(e) = run() {
-        tracing::error!("{e:#}");
-        eprintln!("farsight-{STAGE}: {e:#}");
-        std::process::exit(1);
-    }
+    farsight_stage::run_main(STAGE, run);
 }
 
 fn run() -> Result<()> {

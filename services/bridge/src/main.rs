@@ -15,11 +15,7 @@ use zenoh::Wait;
 const STAGE: &str = "bridge";
 
 fn main() {
-    if let Err(e) = run() {
-        tracing::error!("{e:#}");
-        eprintln!("farsight-bridge: {e:#}");
-        std::process::exit(1);
-    }
+    farsight_stage::run_main(STAGE, run);
 }
 
 fn run() -> Result<()> {

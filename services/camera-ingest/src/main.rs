@@ -37,11 +37,7 @@ enum Event {
 }
 
 fn main() {
-    if let Err(e) = run() {
-        tracing::error!("{e:#}");
-        eprintln!("farsight-{STAGE}: {e:#}");
-        std::process::exit(1);
-    }
+    farsight_stage::run_main(STAGE, run);
 }
 
 /// Plays a folder: decode, pace to `rate_hz`, loop; decoded frames are kept

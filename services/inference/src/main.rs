@@ -21,11 +21,7 @@ use std::time::Duration;
 const STAGE: &str = "inference";
 
 fn main() {
-    if let Err(e) = run() {
-        tracing::error!("{e:#}");
-        eprintln!("farsight-{STAGE}: {e:#}");
-        std::process::exit(1);
-    }
+    farsight_stage::run_main(STAGE, run);
 }
 
 /// Output publishers, created at the first result (when the output size is known).

@@ -239,6 +239,17 @@ pub fn init_tracing(format: LogFormat) {
     };
 }
 
+/// The `main` of a stage: runs `run`, and on error logs it, prints it to stderr
+/// (visible even before logging is set up) and exits with status 1.
+/// Errors print in their alternate form, which for `anyhow` includes the causes.
+pub fn run_main<E: Display>(stage: &str, run: impl FnOnce() -> Result<(), E>) {
+    if let Err(e) = run() {
+        tracing::error!("{e:#}");
+        eprintln!("farsight-{stage}: {e:#}");
+        std::process::exit(1);
+    }
+}
+
 /// Tells launchers and tests the stage is set up: prints `<stage> ready` on
 /// stdout (logs go to stderr) and logs it.
 pub fn announce_ready(stage: &str) {

@@ -7,7 +7,7 @@ use anyhow::Result;
 use farsight_interfaces::camera::Camera;
 use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::fixed::FixedVec;
-use farsight_interfaces::geo::{goal_in_robot_frame, EnuAnchor, GeoPoint};
+use farsight_interfaces::geo::GoalTracker;
 use farsight_interfaces::msg::*;
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
@@ -21,11 +21,7 @@ use std::time::Duration;
 const STAGE: &str = "subgoal-selection";
 
 fn main() {
-    if let Err(e) = run() {
-        tracing::error!("{e:#}");
-        eprintln!("farsight-{STAGE}: {e:#}");
-        std::process::exit(1);
-    }
+    farsight_stage::run_main(STAGE, run);
 }
 
 /// Where a pixel's ray meets flat ground, in the robot frame (x ahead, y left).
@@ -45,10 +41,8 @@ fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
     farsight_stage::init_tracing(args.log_format);
     let config: SubgoalStageConfig = load_config(args.config.as_deref())?;
-    let mut anchor = match (config.anchor_latitude_deg, config.anchor_longitude_deg) {
-        (Some(lat), Some(lon)) => EnuAnchor::configured(GeoPoint::new(lat, lon, 0.0)?),
-        _ => EnuAnchor::default(),
-    };
+    let mut tracker =
+        GoalTracker::anchored_at(config.anchor_latitude_deg, config.anchor_longitude_deg)?;
     let povnav = config.method == "povnav";
     let bus = Bus::open(STAGE)?;
     let nav = bus.slice_subscriber(&topics::navigability(&config.camera))?;
@@ -62,8 +56,7 @@ fn run() -> Result<()> {
     farsight_stage::announce_ready(STAGE);
 
     let clock = WallClock;
-    let (mut camera, mut pose, mut goal): (Option<Camera>, Option<Pose>, Option<NavGoal>) =
-        (None, None, None);
+    let mut camera: Option<Camera> = None;
     let mut half_widths: Option<((u32, u32), Vec<usize>)> = None;
     let mut head = LrnHead::default();
     let mut lrn_cfg = config.lrn;
@@ -82,26 +75,16 @@ fn run() -> Result<()> {
             }
         }
         if let Ok(Some(p)) = poses.latest() {
-            if p.gps.valid == 1 {
-                if let Ok(fix) =
-                    GeoPoint::new(p.gps.latitude_deg, p.gps.longitude_deg, p.gps.altitude_m)
-                {
-                    anchor.observe_fix(fix);
-                }
-            }
-            pose = Some(p);
+            tracker.set_pose(p);
         }
         if let Ok(Some(g)) = goals.latest() {
-            goal = Some(g);
+            tracker.set_goal(g);
         }
         health.tick(now);
         if wake == Wake::Tick {
             return ControlFlow::Continue(());
         }
-        let target = match (&pose, &goal) {
-            (Some(p), Some(g)) => goal_in_robot_frame(p, g, anchor.frame()),
-            _ => None,
-        };
+        let target = tracker.goal_in_robot_frame();
         if povnav {
             let Ok(Some(frame)) = nav.latest() else {
                 return ControlFlow::Continue(());

@@ -7,7 +7,7 @@
 
 use anyhow::Result;
 use farsight_interfaces::clock::{Clock, InputDeadline, WallClock};
-use farsight_interfaces::geo::{goal_in_robot_frame, EnuAnchor, GeoPoint};
+use farsight_interfaces::geo::GoalTracker;
 use farsight_interfaces::msg::{CommandReason, HealthState, Stamp, SubgoalSource, VelocityCommand};
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
@@ -20,21 +20,15 @@ use std::time::Duration;
 const STAGE: &str = "velocity-servoing";
 
 fn main() {
-    if let Err(e) = run() {
-        tracing::error!("{e:#}");
-        eprintln!("farsight-{STAGE}: {e:#}");
-        std::process::exit(1);
-    }
+    farsight_stage::run_main(STAGE, run);
 }
 
 fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
     farsight_stage::init_tracing(args.log_format);
     let config: ServoStageConfig = load_config(args.config.as_deref())?;
-    let mut anchor = match (config.anchor_latitude_deg, config.anchor_longitude_deg) {
-        (Some(lat), Some(lon)) => EnuAnchor::configured(GeoPoint::new(lat, lon, 0.0)?),
-        _ => EnuAnchor::default(),
-    };
+    let mut tracker =
+        GoalTracker::anchored_at(config.anchor_latitude_deg, config.anchor_longitude_deg)?;
     let bus = Bus::open(STAGE)?;
     let subgoals = bus.subscriber(&topics::subgoal())?;
     let estops = bus.subscriber(&topics::estop())?;
@@ -46,7 +40,7 @@ fn run() -> Result<()> {
 
     let clock = WallClock;
     let mut deadline = InputDeadline::new(config.subgoal_deadline_s);
-    let (mut subgoal, mut estop, mut pose, mut goal) = (None, None, None, None);
+    let (mut subgoal, mut estop) = (None, None);
     let mut limiter = RateLimiter::default();
     let period = Duration::from_secs_f64(1.0 / config.output_rate_hz);
     let mut last_ns = clock.now_ns();
@@ -68,17 +62,10 @@ fn run() -> Result<()> {
                 estop = Some(e);
             }
             if let Ok(Some(p)) = poses.latest() {
-                if p.gps.valid == 1 {
-                    if let Ok(fix) =
-                        GeoPoint::new(p.gps.latitude_deg, p.gps.longitude_deg, p.gps.altitude_m)
-                    {
-                        anchor.observe_fix(fix);
-                    }
-                }
-                pose = Some(p);
+                tracker.set_pose(p);
             }
             if let Ok(Some(g)) = goals.latest() {
-                goal = Some(g);
+                tracker.set_goal(g);
             }
             // Commands go out on the tick only (a fixed output rate), and an e-stop
             // is acted on the moment it arrives.
@@ -88,10 +75,7 @@ fn run() -> Result<()> {
             }
             let dt = now.saturating_sub(last_ns) as f64 * 1e-9;
             last_ns = now;
-            let goal_distance = match (&pose, &goal) {
-                (Some(p), Some(g)) => goal_in_robot_frame(p, g, anchor.frame()).map(|(_, d)| d),
-                _ => None,
-            };
+            let goal_distance = tracker.goal_in_robot_frame().map(|(_, d)| d);
             let inputs = Inputs {
                 subgoal_stale: deadline.is_stale(now),
                 estop_active: estop.is_some_and(|e| e.active == 1),
