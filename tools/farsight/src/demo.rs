@@ -1,14 +1,19 @@
 //! `farsight demo`: runs the graph as separate processes on the real ORFD
 //! off-road frames and watches it the way a laptop would.
 //!
-//! camera-ingest (folder of real frames) -> iceoryx2 shared memory -> bridge ->
-//! zenoh -> this process, which saves every frame it receives as PNG and prints
-//! rates, sizes and stage health. Later stages join as they land.
+//! camera-ingest (folder of real frames) -> inference (TwinLiteNet) ->
+//! subgoal-selection (POVNav) -> velocity-servoing, all in iceoryx2 shared
+//! memory, with this process playing the robot (pose, and a goal 200 m ahead)
+//! and, through the bridge and zenoh, the laptop: it saves every frame and
+//! navigability image it receives as PNG and reports the commands.
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use farsight_interfaces::msg::{HealthState, PixelEncoding};
+use farsight_interfaces::msg::{
+    CommandReason, GoalKind, HealthState, NavGoal, PixelEncoding, Pose,
+};
 use farsight_interfaces::topics;
+use farsight_interfaces::transport::ipc::{Bus, IpcSettings};
 use farsight_interfaces::transport::net::NetBus;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
@@ -63,6 +68,18 @@ fn sibling(name: &str) -> Result<PathBuf> {
     Ok(p)
 }
 
+/// Starts a stage and waits for its `<name> ready` line.
+fn start_ready(name: &'static str, config: &Path, prefix: &str, out: &Path) -> Result<Stage> {
+    let log = out.join(format!("{name}.log"));
+    let mut stage = start(name, config, prefix, &log)?;
+    let mut ready = String::new();
+    BufReader::new(stage.0.stdout.take().expect("stdout")).read_line(&mut ready)?;
+    if ready.trim() != format!("{name} ready") {
+        bail!("farsight-{name} did not start; see {}", log.display());
+    }
+    Ok(stage)
+}
+
 fn start(name: &'static str, config: &Path, prefix: &str, log: &Path) -> Result<Stage> {
     let log_file = std::fs::File::create(log)?;
     let child = Command::new(sibling(&format!("farsight-{name}"))?)
@@ -97,7 +114,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     std::fs::write(
         &ingest_cfg,
         format!(
-            "# ORFD camera (calib/cam_K), mounted 1.6 m up, looking ahead.\n[[cameras]]\nfolder = {:?}\nrate_hz = {}\nloops = {}\n\n\
+            "# ORFD camera (calib/cam_K), mounted 1.6 m up, looking ahead.\n[[cameras]]\nfolder = {:?}\nrate_hz = {}\nloops = {}\npace_by = \"perception/front/navigability\"\n\n\
              [cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\nxyz_m = [0.0, 0.0, 1.6]\n",
             frames.display().to_string(),
             a.rate_hz,
@@ -110,11 +127,40 @@ pub fn run(a: DemoArgs) -> Result<()> {
         format!(
             "robot = \"demo\"\n\n[zenoh]\nmode = \"peer\"\nlisten = [\"{endpoint}\"]\n\n\
              [[export]]\ntopic = \"camera/front/image\"\ndownsample = 2\ncompression = \"png\"\n\n\
-             [[export]]\ntopic = \"health/camera-ingest\"\n\n[[export]]\ntopic = \"camera/front/info\"\n"
+             [[export]]\ntopic = \"health/camera-ingest\"\n\n[[export]]\ntopic = \"camera/front/info\"\n\n\
+             [[export]]\ntopic = \"perception/front/navigability\"\ncompression = \"png\"\n\n\
+             [[export]]\ntopic = \"cmd/velocity\"\n\n[[export]]\ntopic = \"nav/subgoal\"\n"
         ),
     )?;
 
-    println!("farsight demo: camera-ingest -> iceoryx2 -> bridge -> zenoh -> this view");
+    let root = std::env::current_dir()?;
+    let model = root.join("deploy/models/twinlitenet.toml");
+    if !model.exists() {
+        bail!(
+            "{} not found: run the demo from the repository root",
+            model.display()
+        );
+    }
+    let inference_cfg = out.join("inference.toml");
+    std::fs::write(
+        &inference_cfg,
+        format!(
+            "camera = \"front\"\nmodel_config = {:?}\n",
+            model.display().to_string()
+        ),
+    )?;
+    let subgoal_cfg = out.join("subgoal-selection.toml");
+    std::fs::write(
+        &subgoal_cfg,
+        "method = \"povnav\"\ncamera = \"front\"\nrobot_width_m = 1.0\n",
+    )?;
+    let servo_cfg = out.join("velocity-servoing.toml");
+    std::fs::write(
+        &servo_cfg,
+        "output_rate_hz = 20.0\nsubgoal_deadline_s = 0.5\n",
+    )?;
+
+    println!("farsight demo: camera-ingest -> inference -> subgoal-selection -> velocity-servoing, watched over zenoh");
     println!("  frames: {}", frames.display());
     println!("  output: {}", out.display());
     let bridge = start("bridge", &bridge_cfg, &prefix, &out.join("bridge.log"))?;
@@ -131,8 +177,32 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let mut images = net.slice_subscriber(&topics::camera_image("front"))?;
     let mut health = net.subscriber(&topics::health("camera-ingest"))?;
     let mut info = net.subscriber(&topics::camera_info("front"))?;
+    let mut nav_images = net.slice_subscriber(&topics::navigability("front"))?;
+    let mut commands = net.subscriber(&topics::velocity_command())?;
+    let mut subgoals = net.subscriber(&topics::subgoal())?;
+    // The robot side: pose at the origin facing east, a goal 200 m ahead.
+    let robot = Bus::open_with(
+        "demo-robot",
+        &IpcSettings {
+            prefix: Some(prefix.clone()),
+            root: None,
+        },
+    )?;
+    let pose_pub = robot.publisher(&topics::pose())?;
+    let goal_pub = robot.publisher(&topics::goal())?;
+    goal_pub.publish(&NavGoal {
+        kind: GoalKind::LOCAL,
+        x_m: 200.0,
+        tolerance_m: 2.0,
+        ..Default::default()
+    })?;
+    let _servo = start_ready("velocity-servoing", &servo_cfg, &prefix, &out)?;
+    let _subgoal = start_ready("subgoal-selection", &subgoal_cfg, &prefix, &out)?;
+    let _inference = start_ready("inference", &inference_cfg, &prefix, &out)?;
+    std::fs::create_dir_all(out.join("navigability"))?;
     std::thread::sleep(Duration::from_millis(500));
     let started = Instant::now();
+    let (mut tracking, mut v_sum, mut w_abs_max, mut last_subgoal) = (0u64, 0.0f64, 0.0f64, None);
     let ingest = start(
         "camera-ingest",
         &ingest_cfg,
@@ -144,6 +214,26 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let (mut received, mut bytes, mut last_health, mut camera) = (0u64, 0usize, None, None);
     let deadline = Instant::now() + Duration::from_secs(60);
     while received < expected && Instant::now() < deadline {
+        pose_pub.publish(&Pose::default())?;
+        goal_pub.deliver_history()?;
+        // The laptop samples the newest command (zenoh keeps only the latest).
+        if let Some(c) = commands.latest()? {
+            if c.reason == CommandReason::TRACKING {
+                tracking += 1;
+                v_sum += c.linear_mps as f64;
+                w_abs_max = w_abs_max.max(c.angular_radps.abs() as f64);
+            }
+        }
+        if let Some(s) = subgoals.latest()? {
+            last_subgoal = Some(s);
+        }
+        if let Some((h, data)) = nav_images.latest()? {
+            std::fs::write(
+                out.join("navigability")
+                    .join(format!("{:04}.png", h.stamp.frame_seq)),
+                &data,
+            )?;
+        }
         if let Some(h) = health.latest()? {
             last_health = Some(h);
         }
@@ -207,7 +297,26 @@ pub fn run(a: DemoArgs) -> Result<()> {
             h.state, h.messages_in, h.messages_out, h.dropped
         );
     }
-    summary += &format!("frames written to {}\n", out.join("frames").display());
+    if tracking > 0 {
+        summary += &format!(
+            "velocity commands sampled while tracking: {tracking}, mean v {:.2} m/s, max |omega| {:.2} rad/s\n",
+            v_sum / tracking as f64,
+            w_abs_max
+        );
+    } else {
+        summary += "no tracking velocity command was received (see velocity-servoing.log)\n";
+    }
+    if let Some(s) = last_subgoal {
+        summary += &format!(
+            "last POVNav subgoal: HOG ({:.0}, {:.0}) px, proximity {:.0} px, alignment {:.2} rad, mode {}\n",
+            s.image_u_px, s.image_v_px, s.proximity_lambda_px, s.alignment_phi_rad, s.mode
+        );
+    }
+    summary += &format!(
+        "frames written to {}, navigability to {}\n",
+        out.join("frames").display(),
+        out.join("navigability").display()
+    );
     std::fs::write(out.join("summary.txt"), &summary)?;
     println!("\n{summary}");
     if received == 0 {
