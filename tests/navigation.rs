@@ -166,6 +166,7 @@ mod graph {
         };
         let driving =
             |c: &VelocityCommand| c.reason == CommandReason::TRACKING && c.linear_mps > 0.05;
+        let robot_path = bus.subscriber(&topics::path("visual_robot")).unwrap();
         let (_, c) = next_cmd(Duration::from_secs(30), &driving).unwrap_or_else(|| {
             panic!(
                 "the graph never drove forward; last command {:?}\nsubgoal-selection:\n{}\nservo:\n{}",
@@ -175,6 +176,22 @@ mod graph {
             )
         });
         assert!(c.angular_radps.abs() < 1.0, "{c:?}");
+        // The visual path on the ground: from beside the robot to a point ahead.
+        let path = robot_path
+            .latest()
+            .unwrap()
+            .expect("the visual path in robot coordinates");
+        assert_eq!(path.frame, PathFrame::ROBOT);
+        let pts = path.points.as_slice();
+        assert!(pts.len() >= 2, "{pts:?}");
+        assert!(
+            pts.iter().all(|p| p[0] > 0.0 && p[0].hypot(p[1]) <= 50.0),
+            "ahead of the camera, within the 50 m default range: {pts:?}"
+        );
+        assert!(
+            pts.last().unwrap()[0] > pts[0][0] + 1.0,
+            "leading away from the robot: {pts:?}"
+        );
 
         infer.kill(); // SIGKILL + reap
         let killed = Instant::now();

@@ -52,6 +52,7 @@ fn run() -> Result<()> {
     let goals = bus.subscriber(&topics::goal())?;
     let subgoals = bus.publisher(&topics::subgoal())?;
     let visual_path = bus.publisher(&topics::path("visual"))?;
+    let visual_path_robot = bus.publisher(&topics::path("visual_robot"))?;
     let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
     farsight_stage::announce_ready(STAGE);
 
@@ -171,9 +172,25 @@ fn run() -> Result<()> {
                 points: FixedVec::from_slice(&points[..points.len().min(MAX_PATH_POINTS)])
                     .unwrap_or_default(),
             };
+            // The same path on the ground, robot frame (metres): pixels at or
+            // above the horizon line have no ground point and are left out.
+            let ground: Vec<[f32; 2]> = p
+                .path_px
+                .iter()
+                .filter_map(|&(u, v)| ground_point(&scaled, u, v))
+                .filter(|&(x, y)| x.hypot(y) <= config.path_max_range_m)
+                .map(|(x, y)| [x as f32, y as f32])
+                .collect();
+            let path_robot = Path {
+                frame: PathFrame::ROBOT,
+                points: FixedVec::from_slice(&ground[..ground.len().min(MAX_PATH_POINTS)])
+                    .unwrap_or_default(),
+                ..path
+            };
             match subgoals
                 .publish(&subgoal)
                 .and_then(|()| visual_path.publish(&path))
+                .and_then(|()| visual_path_robot.publish(&path_robot))
             {
                 Ok(()) => {
                     health.set(HealthState::OK, "");

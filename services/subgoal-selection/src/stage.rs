@@ -6,6 +6,8 @@
 //! robot_width_m = 0.8            # povnav: footprint for the safe visual path
 //! safety_margin_m = 0.2
 //! subgoal_distance_m = 25.0      # lrn: the heading becomes a subgoal this far out
+//! path_max_range_m = 50.0        # povnav: robot-frame path points further out are dropped
+//!                                # (near the horizon line, ground projection is ill-conditioned)
 //! health_rate_hz = 1.0
 //! # anchor_latitude_deg / anchor_longitude_deg: ENU origin for GPS goals
 //!
@@ -26,6 +28,7 @@ pub struct SubgoalStageConfig {
     pub robot_width_m: f64,
     pub safety_margin_m: f64,
     pub subgoal_distance_m: f64,
+    pub path_max_range_m: f64,
     pub health_rate_hz: f64,
     pub anchor_latitude_deg: Option<f64>,
     pub anchor_longitude_deg: Option<f64>,
@@ -41,6 +44,7 @@ impl Default for SubgoalStageConfig {
             robot_width_m: 0.8,
             safety_margin_m: 0.2,
             subgoal_distance_m: 25.0,
+            path_max_range_m: 50.0,
             health_rate_hz: 1.0,
             anchor_latitude_deg: None,
             anchor_longitude_deg: None,
@@ -77,6 +81,12 @@ impl Validate for SubgoalStageConfig {
             "subgoal_distance_m",
             self.subgoal_distance_m,
             "a positive distance",
+        )?;
+        ConfigError::check(
+            self.path_max_range_m > 0.0,
+            "path_max_range_m",
+            self.path_max_range_m,
+            "a positive distance in metres",
         )?;
         ConfigError::check(
             self.health_rate_hz > 0.0,
