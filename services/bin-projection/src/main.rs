@@ -151,17 +151,25 @@ fn run() -> Result<()> {
         {
             maps[i] = Some(CameraBins::new(cam, w, hh, &geometry));
         }
-        let values: Vec<f32> = s
-            .data()
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            .collect();
+        // Read the heatmap in place; copy only if the payload is not f32-aligned.
+        let copied: Vec<f32>;
+        let values: &[f32] = match bytemuck::try_cast_slice(s.data()) {
+            Ok(v) => v,
+            Err(_) => {
+                copied = s
+                    .data()
+                    .chunks_exact(4)
+                    .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                    .collect();
+                &copied
+            }
+        };
         latest[i] = Some((
             now,
             maps[i]
                 .as_ref()
                 .expect("just built")
-                .project(&values, config.bins.h_thresh),
+                .project(values, config.bins.h_thresh),
         ));
         let fresh: Vec<_> = latest
             .iter()

@@ -27,7 +27,9 @@ enum Event {
     Frame {
         camera: usize,
         header: ImageHeader,
-        data: Vec<u8>,
+        /// Shared, so a cached frame replayed from memory is not copied on its
+        /// way to the publishing loop (which copies it once, into shared memory).
+        data: Arc<Vec<u8>>,
         capture_time_ns: Option<u64>,
         /// The registered depth image, when the source has one.
         depth: Option<(ImageHeader, Vec<u8>)>,
@@ -72,13 +74,12 @@ fn folder_source(
 ) {
     let period = Duration::from_secs_f64(1.0 / entry.rate_hz);
     let frame_bytes = w as usize * h as usize * 3;
-    let mut cache: Vec<Option<(ImageHeader, Vec<u8>)>> =
+    let mut cache: Vec<Option<(ImageHeader, Arc<Vec<u8>>)>> =
         if entry.loops != 1 && files.len() * frame_bytes <= 512 << 20 {
             vec![None; files.len()]
         } else {
             vec![]
         };
-    let depth_dir = depth_dir.filter(|d| !d.as_os_str().is_empty());
     let mut next = Instant::now();
     let mut pass = 0;
     while !stop.load(Ordering::Relaxed) && (entry.loops == 0 || pass < entry.loops) {
@@ -93,11 +94,13 @@ fn folder_source(
             next = next.max(now) + period;
             let read = match cache.get(k).cloned().flatten() {
                 Some(f) => Ok(f),
-                None => read_frame(path, w, h).inspect(|f| {
-                    if let Some(slot) = cache.get_mut(k) {
-                        *slot = Some(f.clone());
-                    }
-                }),
+                None => read_frame(path, w, h)
+                    .map(|(h, d)| (h, Arc::new(d)))
+                    .inspect(|f| {
+                        if let Some(slot) = cache.get_mut(k) {
+                            *slot = Some(f.clone());
+                        }
+                    }),
             };
             let depth = match (&depth_dir, &read) {
                 (Some(dir), Ok(_)) => {
@@ -169,7 +172,7 @@ fn mcap_source(
                         .filter(|&t| t > 0)
                         .or(Some(frame.log_time_ns)),
                     header,
-                    data,
+                    data: Arc::new(data),
                     depth: None,
                 },
                 Err(e) => Event::Dropped(format!("{}: {e}", entry.topic)),
@@ -200,7 +203,7 @@ fn v4l2_source(i: usize, mut cam: V4l2Camera, tx: SyncSender<Event>, stop: Arc<A
             Ok((header, data)) => Event::Frame {
                 camera: i,
                 header,
-                data,
+                data: Arc::new(data),
                 capture_time_ns: None,
                 depth: None,
             },
