@@ -634,7 +634,6 @@ pub fn wait_loop(
         ),
         None => None,
     };
-    let mut stopped = false;
     let result = waitset
         .wait_and_process(|id| {
             let mut wake = None;
@@ -650,17 +649,13 @@ pub fn wait_loop(
                 }
             }
             match wake.map(&mut on_wake) {
-                Some(ControlFlow::Break(())) => {
-                    stopped = true;
-                    CallbackProgression::Stop
-                }
+                Some(ControlFlow::Break(())) => CallbackProgression::Stop,
                 _ => CallbackProgression::Continue,
             }
         })
         .map_err(|e| ipc_err("waitset wait", "-", e))?;
     Ok(match result {
         WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => LoopExit::Terminated,
-        _ if stopped => LoopExit::Stopped,
         _ => LoopExit::Stopped,
     })
 }

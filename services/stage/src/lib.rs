@@ -91,6 +91,31 @@ impl ConfigError {
     }
 }
 
+/// Checks an optional ENU anchor given as `anchor_latitude_deg` and
+/// `anchor_longitude_deg`: both or neither, each in range.
+pub fn check_anchor(
+    latitude_deg: Option<f64>,
+    longitude_deg: Option<f64>,
+) -> Result<(), ConfigError> {
+    match (latitude_deg, longitude_deg) {
+        (None, None) => Ok(()),
+        (Some(lat), Some(lon)) => farsight_interfaces::geo::GeoPoint::new(lat, lon, 0.0)
+            .map(|_| ())
+            .map_err(|e| {
+                ConfigError::invalid(
+                    format!("anchor_{}", e.field),
+                    e.value,
+                    format!("[{}, {}] degrees", e.min, e.max),
+                )
+            }),
+        (lat, lon) => Err(ConfigError::invalid(
+            "anchor_latitude_deg/anchor_longitude_deg",
+            format!("{lat:?}/{lon:?}"),
+            "both or neither",
+        )),
+    }
+}
+
 /// Checks a config's values after parsing (ranges, consistency).
 pub trait Validate {
     fn validate(&self) -> Result<(), ConfigError> {
@@ -410,6 +435,19 @@ mod tests {
             e.to_string()
                 .starts_with("cannot read config /nonexistent/x.toml"),
             "{e}"
+        );
+    }
+
+    #[test]
+    fn anchor_is_both_or_neither_and_in_range() {
+        assert!(check_anchor(None, None).is_ok());
+        assert!(check_anchor(Some(40.0), Some(-80.0)).is_ok());
+        let e = check_anchor(Some(40.0), None).unwrap_err();
+        assert!(e.to_string().contains("both or neither"), "{e}");
+        let e = check_anchor(Some(95.0), Some(0.0)).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "config key `anchor_latitude_deg` = 95: expected [-90, 90] degrees"
         );
     }
 

@@ -94,6 +94,7 @@ impl Validate for SubgoalStageConfig {
             self.health_rate_hz,
             "a positive rate in Hz",
         )?;
+        farsight_stage::check_anchor(self.anchor_latitude_deg, self.anchor_longitude_deg)?;
         self.povnav.validate()?;
         self.lrn.validate()
     }

@@ -68,15 +68,7 @@ impl Validate for ServoStageConfig {
             self.health_rate_hz,
             "a positive rate in Hz",
         )?;
-        ConfigError::check(
-            self.anchor_latitude_deg.is_some() == self.anchor_longitude_deg.is_some(),
-            "anchor_latitude_deg/anchor_longitude_deg",
-            format!(
-                "{:?}/{:?}",
-                self.anchor_latitude_deg, self.anchor_longitude_deg
-            ),
-            "both or neither",
-        )?;
+        farsight_stage::check_anchor(self.anchor_latitude_deg, self.anchor_longitude_deg)?;
         self.servo.validate()
     }
 }
