@@ -169,7 +169,7 @@ fn run() -> Result<()> {
             maps[i]
                 .as_ref()
                 .expect("just built")
-                .project(values, config.bins.h_thresh),
+                .project(values, config.bins.pixel_threshold()),
         ));
         let fresh: Vec<_> = latest
             .iter()

@@ -117,24 +117,40 @@ pub fn visual_horizon(
     height: usize,
     cfg: &PovnavConfig,
 ) -> VisualHorizon {
-    let mut rows = vec![0usize; width];
-    for (u, r) in rows.iter_mut().enumerate() {
-        let mut run = 0;
-        let mut top = 0; // navigable rows counted from the bottom
-        for k in 0..height {
-            let v = height - 1 - k;
-            if nav[v * width + u] == 255 {
-                run = 0;
-                top = k + 1;
-            } else {
-                run += 1;
-                if run >= cfg.min_obstacle_px {
-                    break;
-                }
-            }
+    // All columns advance together, one image row at a time from the
+    // bottom: row-major reads of the image, and a loop body without branches
+    // that the compiler vectorises. A column stops once it has met an
+    // obstacle run; the scan ends when every column has.
+    // u16 lanes: twice as many per vector as u32, and no image is 65535 rows.
+    let min_run = cfg.min_obstacle_px.clamp(1, u16::MAX as usize) as u16;
+    let rows_scanned = height.min(nav.len() / width.max(1)).min(u16::MAX as usize);
+    let mut top = vec![0u16; width]; // navigable rows counted from the bottom
+    let mut run = vec![0u16; width]; // current non-navigable run
+    let mut open = vec![u16::MAX; width]; // all ones while the column is still being scanned
+    for k in 0..rows_scanned {
+        let row = &nav[(height - 1 - k) * width..][..width];
+        let k1 = k as u16 + 1;
+        let mut still_open = 0;
+        // Masks and saturating adds only: the release profile checks
+        // overflow, and a checked `+` or `*` here would stop vectorisation.
+        for (((t, r), o), &p) in top
+            .iter_mut()
+            .zip(run.iter_mut())
+            .zip(open.iter_mut())
+            .zip(row)
+        {
+            let navigable = 0u16.wrapping_sub((p == 255) as u16); // 0 or 0xffff
+            let extend = navigable & *o;
+            *t = (k1 & extend) | (*t & !extend);
+            *r = r.saturating_add(1) & !navigable;
+            *o &= 0u16.wrapping_sub((*r < min_run) as u16);
+            still_open |= *o;
         }
-        *r = top;
+        if still_open == 0 {
+            break;
+        }
     }
+    let mut rows: Vec<usize> = top.into_iter().map(|t| t as usize).collect();
     // Opening = erosion (min) then dilation (max) over the window.
     let k = cfg.opening_columns / 2;
     if k > 0 && width > 1 {
@@ -262,13 +278,12 @@ pub fn plan(
     // (Lemma 1: Pareto-optimal subgoals lie on the horizon).
     let mut best: Option<((f64, f64), f64)> = None;
     let mut consider = |u: usize, v: usize| {
+        // Near the side borders the footprint is clipped to the image: a
+        // horizon pixel there is still a valid direction to head.
         let hw = half_width_px.get(v).copied().unwrap_or(0);
-        let lo = u.saturating_sub(hw);
-        let hi = (u + hw).min(width - 1);
-        if nav[v * width + lo..=v * width + hi]
-            .iter()
-            .any(|&p| p != 255)
-        {
+        let lo = u.saturating_sub(hw) as i64;
+        let hi = (u + hw).min(width - 1) as i64;
+        if !footprint_clear(&nav[v * width..][..width], lo, hi, cfg.min_obstacle_px) {
             return;
         }
         let (x, y) = to_plan(u as f64, v as f64, width, height);
@@ -320,7 +335,7 @@ pub fn plan(
         }
     }
 
-    let (path, mode) = visual_path(nav, width, height, hog, half_width_px, cfg.path_row_step);
+    let (path, mode) = visual_path(nav, width, height, hog, half_width_px, cfg);
     // Alignment (Definition 9): direction to the path point at radius R.
     let r = (proximity / 2.0).min(cfg.max_lookahead_px).max(1.0);
     let target = path
@@ -342,54 +357,126 @@ pub fn plan(
     }
 }
 
+/// The footprint test along one image row, with the horizon's noise rule
+/// turned sideways: only a non-navigable run of at least `min_obstacle_px`
+/// pixels blocks the footprint, so speckle in a segmentation mask cannot throw
+/// every wide footprint into fallback.
+///
+/// `fill` counts obstacle pixels in a prefix array once per row, which makes
+/// [`Self::clear`] O(1) for any footprint width and the sideways search of
+/// Algorithm 1 O(width) per row.
+#[derive(Debug, Default)]
+pub struct RowObstacles {
+    /// `before[i]`: obstacle pixels among columns `0..i`.
+    before: Vec<u32>,
+}
+
+impl RowObstacles {
+    pub fn fill(&mut self, row: &[u8], min_obstacle_px: usize) {
+        let min_run = min_obstacle_px.max(1);
+        self.before.clear();
+        self.before.resize(row.len() + 1, 0);
+        let mut run_start = 0;
+        for (i, &p) in row.iter().enumerate() {
+            if p == 255 {
+                run_start = i + 1;
+            }
+            // A pixel is an obstacle when the non-navigable run through it is
+            // long enough; runs are only known at their end, so back-fill.
+            let run = i + 1 - run_start;
+            let ends = p != 255 && row.get(i + 1).is_none_or(|&q| q == 255);
+            self.before[i + 1] = self.before[i];
+            if ends && run >= min_run {
+                for j in run_start..=i {
+                    self.before[j + 1] = self.before[j] + 1;
+                }
+            }
+        }
+    }
+
+    /// No obstacle pixel in columns `lo..=hi` (false when out of the row).
+    pub fn clear(&self, lo: i64, hi: i64) -> bool {
+        lo >= 0
+            && hi >= lo
+            && (hi as usize) < self.before.len() - 1
+            && self.before[hi as usize + 1] == self.before[lo as usize]
+    }
+}
+
+/// The same test as [`RowObstacles`] for a single footprint, by scanning it
+/// (plus the runs that reach into it): cheaper when only one footprint of a
+/// row is checked, as for each horizon pixel.
+pub fn footprint_clear(row: &[u8], lo: i64, hi: i64, min_obstacle_px: usize) -> bool {
+    if lo < 0 || hi < lo || hi as usize >= row.len() {
+        return false;
+    }
+    let (lo, hi) = (lo as usize, hi as usize);
+    let min_run = min_obstacle_px.max(1);
+    let mut i = lo;
+    while i <= hi {
+        if row[i] == 255 {
+            i += 1;
+            continue;
+        }
+        let mut a = i;
+        while a > 0 && row[a - 1] != 255 {
+            a -= 1;
+        }
+        let mut b = i;
+        while b + 1 < row.len() && row[b + 1] != 255 {
+            b += 1;
+        }
+        if b + 1 - a >= min_run {
+            return false;
+        }
+        i = b + 1;
+    }
+    true
+}
+
 /// Algorithm 1: march from the HOG toward the start, keeping the footprint's
-/// safe half-width navigable on both sides, shifting sideways when needed (the
-/// shift direction is chosen once). Rows with no safe shift are skipped and the
-/// path is marked fallback. Returns the path from the start to the HOG.
+/// safe half-width free of obstacles (see [`RowObstacles`]) on both sides,
+/// shifting sideways when needed (the shift direction is chosen once). Rows
+/// with no safe shift are skipped and the path is marked fallback. Returns the
+/// path from the start to the HOG.
 pub fn visual_path(
     nav: &[u8],
     width: usize,
     height: usize,
     hog: (f64, f64),
     half_width_px: &[usize],
-    row_step: usize,
+    cfg: &PovnavConfig,
 ) -> (Vec<(f64, f64)>, Mode) {
     let start_u = (width as f64 - 1.0) / 2.0;
     let bottom = height - 1;
-    let span_ok = |u: f64, v: usize| -> bool {
-        let hw = half_width_px.get(v).copied().unwrap_or(0) as f64;
-        let lo = (u - hw).round();
-        let hi = (u + hw).round();
-        if lo < 0.0 || hi > (width - 1) as f64 {
-            return false;
-        }
-        nav[v * width + lo as usize..=v * width + hi as usize]
-            .iter()
-            .all(|&p| p == 255)
-    };
+    let row_step = cfg.path_row_step.max(1);
+    let mut obstacles = RowObstacles::default();
     let (mut u, mut v) = (hog.0, hog.1.round() as usize);
-    let mut shift: Option<f64> = None;
+    let mut shift: Option<i64> = None;
     let mut mode = Mode::Safe;
     let mut path = Vec::new();
     while v < bottom {
-        if !span_ok(u, v) {
+        let row = &nav[v * width..][..width];
+        let hw = half_width_px.get(v).copied().unwrap_or(0) as i64;
+        // Footprints are centred on whole pixels: the path point itself may
+        // be fractional, `c` is where its footprint is tested.
+        let c = u.round() as i64;
+        if !footprint_clear(row, c - hw, c + hw, cfg.min_obstacle_px) {
+            // Only a blocked row pays for the prefix counts of the search.
+            obstacles.fill(row, cfg.min_obstacle_px);
+            let clear_at = |k: i64| obstacles.clear(c + k - hw, c + k + hw);
+            let reach = |dir: i64| (1..width as i64).find(|&k| clear_at(dir * k));
             if shift.is_none() {
                 // The direction with the nearest safe position at this row.
-                let reach = |dir: f64| (1..width).find(|&k| span_ok(u + dir * k as f64, v));
-                shift = match (reach(-1.0), reach(1.0)) {
-                    (Some(a), Some(b)) => Some(if a <= b { -1.0 } else { 1.0 }),
-                    (Some(_), None) => Some(-1.0),
-                    (None, Some(_)) => Some(1.0),
+                shift = match (reach(-1), reach(1)) {
+                    (Some(a), Some(b)) => Some(if a <= b { -1 } else { 1 }),
+                    (Some(_), None) => Some(-1),
+                    (None, Some(_)) => Some(1),
                     (None, None) => None,
                 };
             }
-            let moved = shift.and_then(|d| {
-                (1..width)
-                    .map(|k| u + d * k as f64)
-                    .find(|&x| span_ok(x, v))
-            });
-            match moved {
-                Some(x) => u = x,
+            match shift.and_then(|d| reach(d).map(|k| d * k)) {
+                Some(k) => u += k as f64,
                 None => {
                     mode = Mode::Fallback;
                     let next = (v + row_step).min(bottom);
@@ -588,11 +675,121 @@ mod tests {
         // Corridor of columns 10..=30; HOG at the top near the left wall.
         let (w, h) = (41, 21);
         let nav = image(w, h, |u, _| (10..=30).contains(&u));
-        let (path, mode) = visual_path(&nav, w, h, (11.0, 0.0), &vec![3; h], 1);
+        let cfg = PovnavConfig {
+            path_row_step: 1,
+            ..Default::default()
+        };
+        let (path, mode) = visual_path(&nav, w, h, (11.0, 0.0), &vec![3; h], &cfg);
         assert_eq!(mode, Mode::Safe);
         assert_eq!(path.first(), Some(&(20.0, 20.0)));
         for &(u, _) in &path[..path.len() - 1] {
             assert!(u - 3.0 >= 10.0 && u + 3.0 <= 30.0, "{u}");
+        }
+    }
+
+    fn random_image(w: usize, h: usize, seed: u32, blocked_per_256: u32) -> Vec<u8> {
+        let mut s = seed;
+        (0..w * h)
+            .map(|_| {
+                s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                if s >> 24 < blocked_per_256 {
+                    0
+                } else {
+                    255
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn horizon_scan_matches_a_plain_column_scan() {
+        let cfg = PovnavConfig {
+            opening_columns: 1,
+            ..Default::default()
+        };
+        for seed in 0..20 {
+            let (w, h) = (37, 29);
+            let nav = random_image(w, h, seed, 60);
+            let got = visual_horizon(&nav, w, h, &cfg).navigable_rows;
+            for u in 0..w {
+                // Up from the bottom until min_obstacle_px blocked in a row.
+                let (mut run, mut top) = (0, 0);
+                for k in 0..h {
+                    if nav[(h - 1 - k) * w + u] == 255 {
+                        run = 0;
+                        top = k + 1;
+                    } else {
+                        run += 1;
+                        if run >= cfg.min_obstacle_px {
+                            break;
+                        }
+                    }
+                }
+                assert_eq!(got[u], top, "seed {seed} column {u}");
+            }
+        }
+    }
+
+    #[test]
+    fn footprint_tests_agree_with_the_run_rule() {
+        let mut rows = RowObstacles::default();
+        for seed in 0..50 {
+            let row = random_image(40, 1, seed, 110);
+            rows.fill(&row, 3);
+            for lo in -2i64..42 {
+                for hi in lo..42 {
+                    // By definition: some pixel in lo..=hi lies in a blocked run of >= 3.
+                    let want = lo >= 0
+                        && hi < 40
+                        && (lo..=hi).all(|i| {
+                            let i = i as usize;
+                            if row[i] == 255 {
+                                return true;
+                            }
+                            let a = (0..=i).rev().take_while(|&j| row[j] != 255).count();
+                            let b = (i..40).take_while(|&j| row[j] != 255).count();
+                            a + b - 1 < 3
+                        });
+                    assert_eq!(rows.clear(lo, hi), want, "seed {seed} {lo}..={hi}");
+                    assert_eq!(
+                        footprint_clear(&row, lo, hi, 3),
+                        want,
+                        "seed {seed} {lo}..={hi}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn speckle_does_not_force_fallback_but_an_obstacle_does() {
+        // All navigable but for isolated 1-2 pixel specks in every row.
+        let (w, h) = (41, 21);
+        let mut nav = image(w, h, |u, v| (u + 3 * v) % 7 != 0);
+        let p = plan(&nav, w, h, 0.0, &vec![6; h], &PovnavConfig::default());
+        assert_eq!(p.mode, Mode::Safe, "specks are noise");
+        assert_eq!(p.hog_px, (20.0, 0.0), "the horizon is the top row");
+        // A rock across the straight path (columns 14..=27, rows 9..=11) is
+        // an obstacle: the path keeps its footprint off it.
+        for v in 9..=11 {
+            for u in 14..=27 {
+                nav[v * w + u] = 0;
+            }
+        }
+        let cfg = PovnavConfig {
+            path_row_step: 1,
+            ..Default::default()
+        };
+        let p = plan(&nav, w, h, 0.0, &vec![6; h], &cfg);
+        assert_eq!(p.mode, Mode::Safe);
+        let beside: Vec<_> = p
+            .path_px
+            .iter()
+            .filter(|&&(_, v)| (9.0..=11.0).contains(&v))
+            .collect();
+        assert_eq!(beside.len(), 3, "{:?}", p.path_px);
+        for &&(u, _) in &beside {
+            assert!(u + 6.0 < 14.0 || u - 6.0 > 27.0, "{u}");
         }
     }
 

@@ -63,7 +63,7 @@ pub fn run(a: NavigationArgs) -> Result<()> {
         let (mut tb, mut tp, mut ts) = (vec![], vec![], vec![]);
         for i in 0..a.runs + 5 {
             let t0 = Instant::now();
-            let proj = map.project(&heat, 0.7);
+            let proj = map.project(&heat, LrnBinsConfig::default().pixel_threshold());
             let out = bins.update(&[proj]);
             let t1 = Instant::now();
             let p = plan(&nav, w, h, 0.3, &hw, &pcfg);
