@@ -338,3 +338,85 @@ mod bins {
         }
     }
 }
+
+/// velocity-servoing as a process tracking a planner's path by carrot: the
+/// test plays the planner (a world-frame path) and localisation (the pose).
+mod path_tracking {
+    use farsight_interfaces::fixed::FixedVec;
+    use farsight_interfaces::msg::*;
+    use farsight_interfaces::topics;
+    use farsight_tests::Namespace;
+    use std::time::{Duration, Instant};
+
+    #[test]
+    fn servo_follows_a_world_frame_path_and_stops_when_it_goes_stale() {
+        let ns = Namespace::new("pathtrack");
+        let bus = ns.bus("path-test");
+        let cfg = ns.write(
+            "velocity-servoing.toml",
+            "track = \"path\"\nsubgoal_deadline_s = 0.3\n[servo]\nlookahead_m = 2.0\n",
+        );
+        let cmds = bus.subscriber(&topics::velocity_command()).unwrap();
+        let health = bus
+            .subscriber(&topics::health("velocity-servoing"))
+            .unwrap();
+        let stage = ns.start_stage("farsight-velocity-servoing", "velocity-servoing", &cfg);
+        let paths = bus.publisher(&topics::path("planned")).unwrap();
+        let poses = bus.publisher(&topics::pose()).unwrap();
+        // Robot at (10, 0) facing north; the path runs north then bends west
+        // (the robot's left): (10,0) -> (10,1) -> (7,1).
+        let pose = Pose {
+            position_m: [10.0, 0.0, 0.0],
+            yaw_rad: std::f64::consts::FRAC_PI_2,
+            ..Default::default()
+        };
+        let path = Path {
+            stamp: Stamp::new(7, 0),
+            frame: PathFrame::WORLD,
+            camera_id: 0,
+            points: FixedVec::from_slice(&[[10.0, 0.0], [10.0, 1.0], [7.0, 1.0]]).unwrap(),
+        };
+        let wait_for = |what: &str, pred: &dyn Fn(&VelocityCommand) -> bool, feed: bool| {
+            let end = Instant::now() + Duration::from_secs(10);
+            while Instant::now() < end {
+                if feed {
+                    poses.publish(&pose).unwrap();
+                    paths.publish(&path).unwrap();
+                }
+                if let Some(c) = cmds.latest().unwrap() {
+                    if pred(&c) {
+                        return c;
+                    }
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            panic!(
+                "no command {what}; last {:?}\n{}",
+                cmds.latest(),
+                stage.stderr_so_far()
+            );
+        };
+        // The carrot is on the westward leg, ahead-left: drive and turn left.
+        let c = wait_for(
+            "turning left along the path",
+            &|c| {
+                c.reason == CommandReason::TRACKING && c.linear_mps > 0.05 && c.angular_radps > 0.3
+            },
+            true,
+        );
+        assert_eq!(
+            c.stamp.frame_seq, 7,
+            "the command names the path it came from"
+        );
+        // The planner stops: zero within the deadline, and health says why.
+        let c = wait_for(
+            "stopping on a stale path",
+            &|c| c.reason == CommandReason::STALE_INPUT,
+            false,
+        );
+        assert_eq!((c.linear_mps, c.angular_radps), (0.0, 0.0));
+        std::thread::sleep(Duration::from_millis(1100)); // one health period
+        let h = health.latest().unwrap().expect("servo health");
+        assert!(h.reason.as_str().starts_with("path is"), "{:?}", h.reason);
+    }
+}

@@ -496,6 +496,27 @@ pub struct Pose {
     pub gps: GpsFix,
 }
 
+impl Pose {
+    /// A world (ENU) point in this pose's robot frame (x ahead, y left).
+    pub fn to_robot_frame(&self, world_m: [f64; 2]) -> [f64; 2] {
+        let (s, c) = self.yaw_rad.sin_cos();
+        let (dx, dy) = (
+            world_m[0] - self.position_m[0],
+            world_m[1] - self.position_m[1],
+        );
+        [c * dx + s * dy, -s * dx + c * dy]
+    }
+
+    /// A robot-frame point in the world (ENU) frame.
+    pub fn to_world_frame(&self, robot_m: [f64; 2]) -> [f64; 2] {
+        let (s, c) = self.yaw_rad.sin_cos();
+        [
+            self.position_m[0] + c * robot_m[0] - s * robot_m[1],
+            self.position_m[1] + s * robot_m[0] + c * robot_m[1],
+        ]
+    }
+}
+
 code_enum! {
     /// How a navigation goal is given.
     GoalKind {
@@ -600,6 +621,26 @@ pub struct CameraInfo {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pose_frame_transforms_by_hand() {
+        // Robot at (10, 5) facing north (yaw 90 deg): a point 2 m north of it
+        // is 2 m ahead; a point 1 m east is 1 m to its right.
+        let pose = Pose {
+            position_m: [10.0, 5.0, 0.0],
+            yaw_rad: std::f64::consts::FRAC_PI_2,
+            ..Default::default()
+        };
+        let near =
+            |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).abs() < 1e-12 && (a[1] - b[1]).abs() < 1e-12;
+        assert!(near(pose.to_robot_frame([10.0, 7.0]), [2.0, 0.0]));
+        assert!(near(pose.to_robot_frame([11.0, 5.0]), [0.0, -1.0]));
+        assert!(near(pose.to_world_frame([0.0, -1.0]), [11.0, 5.0]));
+        assert!(near(
+            pose.to_world_frame(pose.to_robot_frame([-3.0, 8.5])),
+            [-3.0, 8.5]
+        ));
+    }
 
     #[test]
     fn image_header_validate_names_the_mismatch() {

@@ -5,8 +5,11 @@
 //! - [`povnav_command`]: POVNav's control law (section 4.7, eq. 12-13):
 //!   v from the proximity error, omega from the alignment, both clamped, with
 //!   the optional friction-circle bound on the lateral acceleration v * omega;
-//! - [`heading_command`]: tracking a heading (LRN or a planner's carrot point)
-//!   with the same bounds;
+//! - [`heading_command`]: tracking a heading (LRN's chosen bin) with the same
+//!   bounds;
+//! - [`carrot_point`] + [`carrot_command`]: tracking a planner's path (D* Lite,
+//!   HIP) by steering at a carrot point `lookahead_m` along it, bounded the
+//!   same way;
 //! - [`RateLimiter`]: linear and angular acceleration limits between commands;
 //! - [`decide`]: the safety rules: stale inputs or an active e-stop give zero
 //!   velocity with the reason, inside the goal radius the robot stops.
@@ -27,7 +30,7 @@
 
 pub mod stage;
 
-use farsight_interfaces::msg::CommandReason;
+use farsight_interfaces::msg::{CommandReason, Path, PathFrame, Pose};
 use farsight_stage::{ConfigError, Validate};
 use serde::{Deserialize, Serialize};
 
@@ -53,6 +56,8 @@ pub struct ServoConfig {
     pub allow_reverse: bool,
     /// Stop inside this distance of the goal.
     pub goal_radius_m: f64,
+    /// Carrot distance along a tracked path (metres).
+    pub lookahead_m: f64,
 }
 
 impl Default for ServoConfig {
@@ -68,6 +73,7 @@ impl Default for ServoConfig {
             max_lateral_accel_mps2: 0.0,
             allow_reverse: false,
             goal_radius_m: 0.5,
+            lookahead_m: 2.0,
         }
     }
 }
@@ -80,6 +86,7 @@ impl Validate for ServoConfig {
             ("servo.max_linear_mps", self.max_linear_mps),
             ("servo.max_angular_radps", self.max_angular_radps),
             ("servo.max_linear_accel_mps2", self.max_linear_accel_mps2),
+            ("servo.lookahead_m", self.lookahead_m),
             (
                 "servo.max_angular_accel_radps2",
                 self.max_angular_accel_radps2,
@@ -143,6 +150,76 @@ pub fn heading_command(heading_rad: f64, cfg: &ServoConfig) -> (f64, f64) {
         cfg.k_angular * h,
         cfg,
     )
+}
+
+/// The carrot on a path (robot frame, metres, in driving order): from the
+/// path vertex nearest the robot, the first point along the path at
+/// `lookahead_m` from the robot, interpolated on the segment that crosses that
+/// circle; the path's end when all of the rest is closer. Starting from the
+/// nearest vertex means a path planned a moment ago, whose first points the
+/// robot has already passed, is still followed forward. `None` for an empty
+/// path or one with a non-finite point (never steer at garbage).
+pub fn carrot_point(path_robot_m: &[[f64; 2]], lookahead_m: f64) -> Option<[f64; 2]> {
+    if path_robot_m
+        .iter()
+        .any(|p| !(p[0].is_finite() && p[1].is_finite()))
+    {
+        return None;
+    }
+    let dist = |p: &[f64; 2]| p[0].hypot(p[1]);
+    let nearest = path_robot_m
+        .iter()
+        .enumerate()
+        .min_by(|a, b| dist(a.1).total_cmp(&dist(b.1)))?
+        .0;
+    let rest = &path_robot_m[nearest..];
+    for w in rest.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        if dist(&b) >= lookahead_m {
+            if dist(&a) >= lookahead_m {
+                return Some(a);
+            }
+            // |a + t (b - a)| = L on t in [0, 1], the root past a.
+            let d = [b[0] - a[0], b[1] - a[1]];
+            let (qa, qb, qc) = (
+                d[0] * d[0] + d[1] * d[1],
+                2.0 * (a[0] * d[0] + a[1] * d[1]),
+                a[0] * a[0] + a[1] * a[1] - lookahead_m * lookahead_m,
+            );
+            let t = (-qb + (qb * qb - 4.0 * qa * qc).max(0.0).sqrt()) / (2.0 * qa);
+            let t = t.clamp(0.0, 1.0);
+            return Some([a[0] + t * d[0], a[1] + t * d[1]]);
+        }
+    }
+    rest.last().copied()
+}
+
+/// Steers at a carrot (robot frame, metres) as [`heading_command`] does, and
+/// slows in proportion once the carrot is closer than `lookahead_m` (the end
+/// of the path), so the robot arrives rather than overshoots.
+pub fn carrot_command(carrot_m: [f64; 2], cfg: &ServoConfig) -> (f64, f64) {
+    let (v, w) = heading_command(carrot_m[1].atan2(carrot_m[0]), cfg);
+    let d = carrot_m[0].hypot(carrot_m[1]);
+    (v * (d / cfg.lookahead_m).min(1.0), w)
+}
+
+/// A planner's path in the robot frame now: a world-frame path is moved into
+/// the frame of `pose`; a robot-frame one is used as it is. The error says why
+/// the path cannot be tracked (image-frame paths are for inspection only).
+pub fn path_in_robot_frame(path: &Path, pose: Option<&Pose>) -> Result<Vec<[f64; 2]>, String> {
+    let points = path
+        .points
+        .as_slice()
+        .iter()
+        .map(|p| [p[0] as f64, p[1] as f64]);
+    match path.frame {
+        PathFrame::ROBOT => Ok(points.collect()),
+        PathFrame::WORLD => {
+            let pose = pose.ok_or("a world-frame path needs a pose, none received yet")?;
+            Ok(points.map(|p| pose.to_robot_frame(p)).collect())
+        }
+        other => Err(format!("cannot track a path in the {other} frame")),
+    }
 }
 
 /// Limits how fast the command may change between two outputs.
@@ -268,6 +345,46 @@ mod tests {
         let (v, w) = heading_command(3.0, &cfg);
         assert_eq!(v, 0.0, "turn in place toward a goal behind");
         assert!(w > 0.0);
+    }
+
+    #[test]
+    fn carrot_on_a_path_by_hand() {
+        let near =
+            |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).abs() < 1e-9 && (a[1] - b[1]).abs() < 1e-9;
+        // Straight ahead then a left turn: (0,0) -> (1,0) -> (1,3). With L = 2 the
+        // circle crosses the second segment at x = 1, y = sqrt(3).
+        let path = [[0.0, 0.0], [1.0, 0.0], [1.0, 3.0]];
+        assert!(near(carrot_point(&path, 2.0).unwrap(), [1.0, 3f64.sqrt()]));
+        // The robot has driven past the first vertices: the path now starts
+        // behind it, and the carrot is still found ahead along the path.
+        let behind = [[-4.0, 0.0], [-2.0, 0.0], [0.5, 0.0], [3.0, 0.0], [6.0, 0.0]];
+        assert!(near(carrot_point(&behind, 2.0).unwrap(), [2.0, 0.0]));
+        // All of the path inside the circle: its end.
+        assert!(near(
+            carrot_point(&[[0.0, 0.0], [0.5, 0.5]], 2.0).unwrap(),
+            [0.5, 0.5]
+        ));
+        assert_eq!(carrot_point(&[], 2.0), None);
+        assert_eq!(carrot_point(&[[0.0, 0.0], [f64::NAN, 1.0]], 2.0), None);
+    }
+
+    #[test]
+    fn carrot_command_turns_toward_it_and_slows_at_the_end() {
+        let cfg = ServoConfig::default();
+        // Carrot 2 m away at 45 deg left: v = 0.5 cos 45, omega = 1.5 * pi/4.
+        let (v, w) = carrot_command([2f64.sqrt(), 2f64.sqrt()], &cfg);
+        assert!(
+            (v - 0.5 * std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-12,
+            "{v}"
+        );
+        assert!((w - 1.5 * std::f64::consts::FRAC_PI_4).abs() < 1e-12, "{w}");
+        // The path's end 0.5 m ahead with L = 2: a quarter of full speed.
+        let (v, w) = carrot_command([0.5, 0.0], &cfg);
+        assert!((v - 0.125).abs() < 1e-12 && w == 0.0, "{v} {w}");
+        // A carrot behind: turn in place, never reverse.
+        let (v, w) = carrot_command([-3.0, -0.1], &cfg);
+        assert_eq!(v, 0.0);
+        assert!(w < 0.0, "turns right toward a carrot behind-right");
     }
 
     #[test]

@@ -1,9 +1,10 @@
 //! `farsight-velocity-servoing`: publishes a velocity command at a fixed rate.
-//! Each command comes from the newest subgoal (POVNav features or a heading)
-//! through the bounded control law and the acceleration limits; a stale
-//! subgoal, an active e-stop or a reached goal give zero velocity at once, with
-//! the reason in the command and in the stage's health. An old command is
-//! never republished: every output is computed from the inputs of that moment.
+//! Each command comes from the newest tracked input (a subgoal: POVNav
+//! features or a heading; or a planner's path, by carrot) through the bounded
+//! control law and the acceleration limits; a stale input, an active e-stop or
+//! a reached goal give zero velocity at once, with the reason in the command
+//! and in the stage's health. An old command is never republished: every
+//! output is computed from the inputs of that moment.
 
 use anyhow::Result;
 use farsight_interfaces::clock::{Clock, InputDeadline, WallClock};
@@ -12,8 +13,11 @@ use farsight_interfaces::msg::{CommandReason, HealthState, Stamp, SubgoalSource,
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
 use farsight_stage::{load_config, Health, StageArgs};
-use farsight_velocity_servoing::stage::ServoStageConfig;
-use farsight_velocity_servoing::{decide, heading_command, povnav_command, Inputs, RateLimiter};
+use farsight_velocity_servoing::stage::{ServoStageConfig, Track};
+use farsight_velocity_servoing::{
+    carrot_command, carrot_point, decide, heading_command, path_in_robot_frame, povnav_command,
+    Inputs, RateLimiter,
+};
 use std::ops::ControlFlow;
 use std::time::Duration;
 
@@ -31,6 +35,7 @@ fn run() -> Result<()> {
         GoalTracker::anchored_at(config.anchor_latitude_deg, config.anchor_longitude_deg)?;
     let bus = Bus::open(STAGE)?;
     let subgoals = bus.subscriber(&topics::subgoal())?;
+    let paths = bus.subscriber(&topics::path(&config.path_topic))?;
     let estops = bus.subscriber(&topics::estop())?;
     let poses = bus.subscriber(&topics::pose())?;
     let goals = bus.subscriber(&topics::goal())?;
@@ -40,20 +45,37 @@ fn run() -> Result<()> {
 
     let clock = WallClock;
     let mut deadline = InputDeadline::new(config.subgoal_deadline_s);
-    let (mut subgoal, mut estop) = (None, None);
+    let (mut subgoal, mut path, mut estop, mut pose) = (None, None, None, None);
+    let tracked = match config.track {
+        Track::Subgoal => "subgoal",
+        Track::Path => "path",
+    };
     let mut limiter = RateLimiter::default();
     let period = Duration::from_secs_f64(1.0 / config.output_rate_hz);
     let mut last_ns = clock.now_ns();
     ipc::wait_loop(
-        &[subgoals.listener(), estops.listener()],
+        &[subgoals.listener(), estops.listener(), paths.listener()],
         Some(period),
         |wake| {
             let now = clock.now_ns();
             match subgoals.latest() {
                 Ok(Some(s)) => {
-                    health.input();
-                    deadline.seen(now);
+                    if config.track == Track::Subgoal {
+                        health.input();
+                        deadline.seen(now);
+                    }
                     subgoal = Some(s);
+                }
+                Ok(None) => {}
+                Err(e) => health.dropped(&e),
+            }
+            match paths.latest() {
+                Ok(Some(p)) => {
+                    if config.track == Track::Path {
+                        health.input();
+                        deadline.seen(now);
+                    }
+                    path = Some(p);
                 }
                 Ok(None) => {}
                 Err(e) => health.dropped(&e),
@@ -63,6 +85,7 @@ fn run() -> Result<()> {
             }
             if let Ok(Some(p)) = poses.latest() {
                 tracker.set_pose(p);
+                pose = Some(p);
             }
             if let Ok(Some(g)) = goals.latest() {
                 tracker.set_goal(g);
@@ -81,17 +104,21 @@ fn run() -> Result<()> {
                 estop_active: estop.is_some_and(|e| e.active == 1),
                 goal_distance_m: goal_distance,
             };
-            let stamp = subgoal.map(|s| s.stamp).unwrap_or_default();
+            let stamp = match config.track {
+                Track::Subgoal => subgoal.map(|s| s.stamp),
+                Track::Path => path.map(|p| p.stamp),
+            }
+            .unwrap_or_default();
             let cmd = match decide(&inputs, &config.servo) {
                 Some(reason) => {
                     limiter.stop();
                     let why = match reason {
                         CommandReason::STALE_INPUT => match deadline.age_s(now) {
                             Some(age) => format!(
-                                "subgoal is {age:.2} s old (deadline {} s)",
+                                "{tracked} is {age:.2} s old (deadline {} s)",
                                 config.subgoal_deadline_s
                             ),
-                            None => "no subgoal received yet".to_string(),
+                            None => format!("no {tracked} received yet"),
                         },
                         CommandReason::ESTOP => "e-stop active".to_string(),
                         _ => "goal reached".to_string(),
@@ -105,23 +132,45 @@ fn run() -> Result<()> {
                     VelocityCommand::stop(stamp, reason)
                 }
                 None => {
-                    health.set(HealthState::OK, "");
-                    let s = subgoal.expect("not stale, so received");
-                    let target = if s.source == SubgoalSource::POVNAV {
-                        povnav_command(
-                            s.proximity_lambda_px as f64,
-                            s.alignment_phi_rad as f64,
-                            &config.servo,
-                        )
-                    } else {
-                        heading_command(s.heading_rad as f64, &config.servo)
+                    let target = match config.track {
+                        Track::Subgoal => {
+                            let s = subgoal.expect("not stale, so received");
+                            Ok(if s.source == SubgoalSource::POVNAV {
+                                povnav_command(
+                                    s.proximity_lambda_px as f64,
+                                    s.alignment_phi_rad as f64,
+                                    &config.servo,
+                                )
+                            } else {
+                                heading_command(s.heading_rad as f64, &config.servo)
+                            })
+                        }
+                        Track::Path => {
+                            let p = path.expect("not stale, so received");
+                            path_in_robot_frame(&p, pose.as_ref()).and_then(|points| {
+                                carrot_point(&points, config.servo.lookahead_m)
+                                    .map(|c| carrot_command(c, &config.servo))
+                                    .ok_or_else(|| "path is empty or not finite".to_string())
+                            })
+                        }
                     };
-                    let (v, w) = limiter.limit(target, dt, &config.servo);
-                    VelocityCommand {
-                        stamp: s.stamp,
-                        linear_mps: v as f32,
-                        angular_radps: w as f32,
-                        reason: CommandReason::TRACKING,
+                    match target {
+                        Ok(target) => {
+                            health.set(HealthState::OK, "");
+                            let (v, w) = limiter.limit(target, dt, &config.servo);
+                            VelocityCommand {
+                                stamp,
+                                linear_mps: v as f32,
+                                angular_radps: w as f32,
+                                reason: CommandReason::TRACKING,
+                            }
+                        }
+                        Err(why) => {
+                            // An untrackable input stops the robot like a stale one.
+                            limiter.stop();
+                            health.set(HealthState::DEGRADED, &why);
+                            VelocityCommand::stop(stamp, CommandReason::NO_SUBGOAL)
+                        }
                     }
                 }
             };

@@ -2,7 +2,10 @@
 //!
 //! ```toml
 //! output_rate_hz = 20.0          # commands are published at this rate, always
-//! subgoal_deadline_s = 0.5       # older subgoals stop the robot
+//! track = "subgoal"              # "subgoal" (nav/subgoal: POVNav features or an
+//!                                # LRN heading) or "path" (a planner's path, by carrot)
+//! path_topic = "planned"         # with track = "path": nav/path/<path_topic>
+//! subgoal_deadline_s = 0.5       # an older tracked input (subgoal or path) stops the robot
 //! health_rate_hz = 1.0
 //! # anchor_latitude_deg / anchor_longitude_deg: the ENU origin for GPS goals
 //! # (default: the first GPS fix in the pose)
@@ -18,16 +21,30 @@
 //! max_lateral_accel_mps2 = 0.0   # friction circle, 0 = off
 //! allow_reverse = false
 //! goal_radius_m = 0.5
+//! lookahead_m = 2.0              # carrot distance along a tracked path
 //! ```
 
 use crate::ServoConfig;
 use farsight_stage::{ConfigError, Validate};
 use serde::{Deserialize, Serialize};
 
+/// Which input the servo follows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Track {
+    /// `nav/subgoal`: POVNav's features through its control law, or a heading.
+    #[default]
+    Subgoal,
+    /// `nav/path/<path_topic>`: a carrot point along a planner's path.
+    Path,
+}
+
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ServoStageConfig {
     pub output_rate_hz: f64,
+    pub track: Track,
+    pub path_topic: String,
     pub subgoal_deadline_s: f64,
     pub health_rate_hz: f64,
     pub anchor_latitude_deg: Option<f64>,
@@ -39,6 +56,8 @@ impl Default for ServoStageConfig {
     fn default() -> Self {
         Self {
             output_rate_hz: 20.0,
+            track: Track::Subgoal,
+            path_topic: "planned".into(),
             subgoal_deadline_s: 0.5,
             health_rate_hz: 1.0,
             anchor_latitude_deg: None,
@@ -67,6 +86,12 @@ impl Validate for ServoStageConfig {
             "health_rate_hz",
             self.health_rate_hz,
             "a positive rate in Hz",
+        )?;
+        ConfigError::check(
+            !self.path_topic.is_empty() && !self.path_topic.contains(char::is_whitespace),
+            "path_topic",
+            &self.path_topic,
+            "a topic name such as \"planned\"",
         )?;
         farsight_stage::check_anchor(self.anchor_latitude_deg, self.anchor_longitude_deg)?;
         self.servo.validate()
