@@ -1,0 +1,161 @@
+//! Polar bins -> map cells (FITAM section IV-B/IV-D): the *swath* of a
+//! (heading bin, radial bin) pair is every cell whose centre lies inside the
+//! bin's annular sector around the robot's cell.
+//!
+//! As in the reference code, distance is measured between cell centres
+//! (`res * hypot(di, dj)`) and both radial bounds are inclusive, so a cell
+//! exactly on an edge belongs to both neighbouring radial bins. Heading bins
+//! are half-open `[start, start + width)`, taken modulo 2 pi so a bin may
+//! straddle +-pi.
+
+use crate::grid::cell_of;
+use std::f64::consts::{PI, TAU};
+
+/// The layout of a set of polar bins in the robot frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PolarGeometry {
+    pub heading_bins: usize,
+    /// Bearing (robot frame, counter-clockwise) where heading bin 0 starts.
+    pub first_heading_start_rad: f64,
+    pub heading_width_rad: f64,
+    /// Radial bin `r` covers `range_edges_m[r]..=range_edges_m[r + 1]`.
+    pub range_edges_m: Vec<f64>,
+}
+
+impl PolarGeometry {
+    /// FITAM's simulated default: 32 heading bins, radial edges 25/50/75/100 m,
+    /// bin 0 starting at -pi.
+    pub fn fitam_default() -> Self {
+        Self {
+            heading_bins: 32,
+            first_heading_start_rad: -PI,
+            heading_width_rad: TAU / 32.0,
+            range_edges_m: vec![25.0, 50.0, 75.0, 100.0],
+        }
+    }
+
+    pub fn radial_bins(&self) -> usize {
+        self.range_edges_m.len().saturating_sub(1)
+    }
+
+    /// The heading bin of a robot-frame bearing, if one covers it.
+    pub fn heading_bin(&self, bearing_rad: f64) -> Option<usize> {
+        let a = (bearing_rad - self.first_heading_start_rad).rem_euclid(TAU);
+        let k = (a / self.heading_width_rad).floor() as usize;
+        (k < self.heading_bins).then_some(k)
+    }
+}
+
+/// Calls `f(gx, gy, heading_bin, radial_bin)` for every cell of every swath
+/// around a robot at `(x_m, y_m)` with heading `yaw_rad` (ENU, counter-
+/// clockwise from east), on a grid of `resolution_m` cells.
+pub fn for_each_swath_cell(
+    geometry: &PolarGeometry,
+    x_m: f64,
+    y_m: f64,
+    yaw_rad: f64,
+    resolution_m: f64,
+    mut f: impl FnMut(i64, i64, usize, usize),
+) {
+    let Some(&max_range) = geometry.range_edges_m.last() else {
+        return;
+    };
+    let (cx, cy) = (cell_of(x_m, resolution_m), cell_of(y_m, resolution_m));
+    let n = (max_range / resolution_m).ceil() as i64;
+    for dy in -n..=n {
+        for dx in -n..=n {
+            let range = resolution_m * (dx as f64).hypot(dy as f64);
+            if range > max_range || (dx == 0 && dy == 0) {
+                continue;
+            }
+            let Some(h) = geometry.heading_bin((dy as f64).atan2(dx as f64) - yaw_rad) else {
+                continue;
+            };
+            for (r, edge) in geometry.range_edges_m.windows(2).enumerate() {
+                if edge[0] <= range && range <= edge[1] {
+                    f(cx + dx, cy + dy, h, r);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::HashSet;
+
+    fn cells_of(g: &PolarGeometry, yaw: f64, want_h: usize, want_r: usize) -> HashSet<(i64, i64)> {
+        let mut s = HashSet::new();
+        for_each_swath_cell(g, 0.0, 0.0, yaw, 1.0, |x, y, h, r| {
+            if (h, r) == (want_h, want_r) {
+                s.insert((x, y));
+            }
+        });
+        s
+    }
+
+    #[test]
+    fn boundary_cells_belong_to_both_radial_bins() {
+        // 4 heading bins of 90 deg starting at -45 deg: bin 0 looks ahead.
+        let g = PolarGeometry {
+            heading_bins: 4,
+            first_heading_start_rad: -PI / 4.0,
+            heading_width_rad: PI / 2.0,
+            range_edges_m: vec![2.0, 4.0, 6.0],
+        };
+        let near = cells_of(&g, 0.0, 0, 0);
+        let far = cells_of(&g, 0.0, 0, 1);
+        // (4, 0) is exactly 4 m ahead: in both; (2, 0) only near; (6, 0) only far.
+        assert!(near.contains(&(4, 0)) && far.contains(&(4, 0)));
+        assert!(near.contains(&(2, 0)) && !far.contains(&(2, 0)));
+        assert!(far.contains(&(6, 0)) && !near.contains(&(6, 0)));
+        assert!(!near.contains(&(1, 0)), "inside the first edge");
+        // (3, 1): 3.16 m at 18.4 deg: near, ahead bin. (3, 3): 45 deg is the
+        // start of bin 1 (half-open), so not in bin 0.
+        assert!(near.contains(&(3, 1)));
+        assert!(!near.contains(&(2, 2)) && cells_of(&g, 0.0, 1, 0).contains(&(2, 2)));
+        // The robot faces north: "ahead" is now +y.
+        let north = cells_of(&g, PI / 2.0, 0, 0);
+        assert!(north.contains(&(0, 3)) && !north.contains(&(3, 0)));
+    }
+
+    #[test]
+    fn the_bin_behind_wraps_around_pi() {
+        let g = PolarGeometry::fitam_default();
+        // Bin 0 of the default starts at -pi: it holds bearings just past -pi
+        // (behind, slightly right); the last bin holds bearings just below +pi.
+        assert_eq!(g.heading_bin(-PI + 0.01), Some(0));
+        assert_eq!(g.heading_bin(PI - 0.01), Some(31));
+        assert_eq!(g.heading_bin(PI), Some(0), "+pi is -pi");
+        assert_eq!(g.heading_bin(3.0 * PI - 0.01), Some(31));
+        // A bin straddling +-pi: 8 bins, bin 0 from 157.5 deg to -157.5 deg.
+        let s = PolarGeometry {
+            heading_bins: 8,
+            first_heading_start_rad: PI - PI / 8.0,
+            heading_width_rad: PI / 4.0,
+            range_edges_m: vec![0.5, 10.0],
+        };
+        let behind = cells_of(&s, 0.0, 0, 0);
+        assert!(
+            behind.contains(&(-5, 1)) && behind.contains(&(-5, -1)) && behind.contains(&(-5, 0))
+        );
+        assert!(!behind.contains(&(5, 0)));
+        // Every cell in range is in exactly one heading bin.
+        let mut count = std::collections::HashMap::new();
+        for_each_swath_cell(&s, 0.0, 0.0, 0.3, 1.0, |x, y, _, _| {
+            *count.entry((x, y)).or_insert(0) += 1
+        });
+        assert!(count.values().all(|&c| c == 1));
+        assert_eq!(
+            count.len(),
+            (-10i64..=10)
+                .flat_map(|x| (-10i64..=10).map(move |y| (x, y)))
+                .filter(|&(x, y)| {
+                    let d = ((x * x + y * y) as f64).sqrt();
+                    (0.5..=10.0).contains(&d)
+                })
+                .count()
+        );
+    }
+}
