@@ -5,9 +5,12 @@
 //! - [`povnav`]: POVNav (sections 4.3-4.7): visual horizon of the navigability
 //!   image, peripheral optic goal, Pareto-optimal horizon optic goal, the visual
 //!   path of Algorithm 1 and the proximity/alignment servo features.
+//! - [`lrn_head`]: LRN's goal-conditioned heading choice over angular bins.
+//! - [`dstar_lite`]: D* Lite (and A*) on the fused FITAM costmap.
 //!
 //! Plain functions over plain data; the stage binary wires them to the bus.
 
+pub mod dstar_lite;
 pub mod lrn_head;
 pub mod povnav;
 pub mod stage;

@@ -1,0 +1,504 @@
+//! Grid planning for FITAM's sense-plan-act loop (section IV-E): D* Lite
+//! (Koenig & Likhachev 2002, the optimised version) on an 8-connected grid,
+//! and plain A* as its reference.
+//!
+//! Moving from a cell into cell `v` costs `cost[v] * resolution` (times
+//! sqrt 2 on a diagonal), as the FITAM reference code; an infinite (or NaN)
+//! cost blocks the cell. The heuristic is the octile distance times the
+//! cheapest cost per metre any cell can have, so it stays admissible.
+//!
+//! D* Lite searches backward from the goal. After the robot moves and cells
+//! change, only the vertices whose edges changed are updated and the search
+//! repairs from there, instead of planning again from scratch.
+//!
+//! ```
+//! use farsight_subgoal_selection::dstar_lite::{CostGrid, DStarLite};
+//!
+//! // 5x3 grid of 1 s/m cells with a wall in column 2 except the top row.
+//! let mut grid = CostGrid::new(5, 3, 1.0, 1.0);
+//! grid.set(2, 1, f32::INFINITY);
+//! grid.set(2, 2, f32::INFINITY);
+//! let mut planner = DStarLite::new(grid, (0, 2), (4, 2), 1.0);
+//! let cost = planner.compute().expect("a way around the wall");
+//! assert!((cost - (2.0 + 2.0 * 2f64.sqrt())).abs() < 1e-9);
+//! assert_eq!(planner.path().first(), Some(&(0, 2)));
+//! ```
+
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+
+const SQRT2: f64 = std::f64::consts::SQRT_2;
+const NEIGHBOURS: [(i64, i64); 8] = [
+    (1, 0),
+    (-1, 0),
+    (0, 1),
+    (0, -1),
+    (1, 1),
+    (1, -1),
+    (-1, 1),
+    (-1, -1),
+];
+
+/// Cell costs (s/m) of a grid, row-major by `(x, y)`; infinite = blocked.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CostGrid {
+    pub width: usize,
+    pub height: usize,
+    pub resolution_m: f64,
+    costs: Vec<f32>,
+}
+
+impl CostGrid {
+    pub fn new(width: usize, height: usize, resolution_m: f64, fill_s_per_m: f32) -> Self {
+        Self {
+            width,
+            height,
+            resolution_m,
+            costs: vec![fill_s_per_m; width * height],
+        }
+    }
+
+    pub fn get(&self, x: usize, y: usize) -> f32 {
+        self.costs[y * self.width + x]
+    }
+
+    pub fn set(&mut self, x: usize, y: usize, cost_s_per_m: f32) {
+        self.costs[y * self.width + x] = cost_s_per_m;
+    }
+
+    fn blocked(c: f32) -> bool {
+        !c.is_finite() || c < 0.0
+    }
+
+    /// Cost of stepping from `a` into its neighbour `b` (seconds).
+    pub fn step_cost(&self, a: (usize, usize), b: (usize, usize)) -> f64 {
+        let c = self.get(b.0, b.1);
+        if Self::blocked(c) || Self::blocked(self.get(a.0, a.1)) {
+            return f64::INFINITY;
+        }
+        let diagonal = a.0 != b.0 && a.1 != b.1;
+        c as f64 * self.resolution_m * if diagonal { SQRT2 } else { 1.0 }
+    }
+
+    fn neighbours(&self, (x, y): (usize, usize)) -> impl Iterator<Item = (usize, usize)> + '_ {
+        NEIGHBOURS.iter().filter_map(move |&(dx, dy)| {
+            let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+            (nx >= 0 && ny >= 0 && (nx as usize) < self.width && (ny as usize) < self.height)
+                .then_some((nx as usize, ny as usize))
+        })
+    }
+
+    /// Total cost of a path of neighbouring cells.
+    pub fn path_cost(&self, path: &[(usize, usize)]) -> f64 {
+        path.windows(2).map(|w| self.step_cost(w[0], w[1])).sum()
+    }
+}
+
+/// Octile distance in metres times the cheapest cost per metre.
+fn octile(a: (usize, usize), b: (usize, usize), scale: f64) -> f64 {
+    let dx = a.0.abs_diff(b.0) as f64;
+    let dy = a.1.abs_diff(b.1) as f64;
+    scale * (dx.max(dy) + (SQRT2 - 1.0) * dx.min(dy))
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Key(f64, f64);
+
+impl Eq for Key {}
+impl PartialOrd for Key {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Key {
+    fn cmp(&self, other: &Self) -> Ordering {
+        self.0.total_cmp(&other.0).then(self.1.total_cmp(&other.1))
+    }
+}
+
+/// Min-heap entry.
+#[derive(Debug, PartialEq, Eq)]
+struct Entry(Key, usize);
+impl PartialOrd for Entry {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Entry {
+    fn cmp(&self, other: &Self) -> Ordering {
+        other.0.cmp(&self.0).then(other.1.cmp(&self.1))
+    }
+}
+
+/// Plain A* from `start` to `goal`: the cheapest path and its cost.
+pub fn astar(
+    grid: &CostGrid,
+    start: (usize, usize),
+    goal: (usize, usize),
+    min_cost_s_per_m: f64,
+) -> Option<(Vec<(usize, usize)>, f64)> {
+    let scale = min_cost_s_per_m * grid.resolution_m;
+    let idx = |c: (usize, usize)| c.1 * grid.width + c.0;
+    let mut g = vec![f64::INFINITY; grid.width * grid.height];
+    let mut parent = vec![usize::MAX; grid.width * grid.height];
+    let mut open = BinaryHeap::new();
+    g[idx(start)] = 0.0;
+    open.push(Entry(Key(octile(start, goal, scale), 0.0), idx(start)));
+    while let Some(Entry(Key(f, _), i)) = open.pop() {
+        let c = (i % grid.width, i / grid.width);
+        if f > g[i] + octile(c, goal, scale) + 1e-9 {
+            continue; // stale entry
+        }
+        if c == goal {
+            let mut path = vec![c];
+            let mut k = i;
+            while parent[k] != usize::MAX {
+                k = parent[k];
+                path.push((k % grid.width, k / grid.width));
+            }
+            path.reverse();
+            return Some((path, g[i]));
+        }
+        for n in grid.neighbours(c) {
+            let cand = g[i] + grid.step_cost(c, n);
+            if cand < g[idx(n)] {
+                g[idx(n)] = cand;
+                parent[idx(n)] = i;
+                open.push(Entry(Key(cand + octile(n, goal, scale), 0.0), idx(n)));
+            }
+        }
+    }
+    None
+}
+
+/// An incremental planner over a [`CostGrid`].
+pub struct DStarLite {
+    grid: CostGrid,
+    start: (usize, usize),
+    last_start: (usize, usize),
+    goal: (usize, usize),
+    scale: f64,
+    km: f64,
+    g: Vec<f64>,
+    rhs: Vec<f64>,
+    /// The key a vertex is queued with; `None` when it is not in the queue.
+    queued: Vec<Option<Key>>,
+    open: BinaryHeap<Entry>,
+    /// Vertices expanded over the planner's life (to show the repair is cheap).
+    pub expanded: usize,
+}
+
+impl DStarLite {
+    pub fn new(
+        grid: CostGrid,
+        start: (usize, usize),
+        goal: (usize, usize),
+        min_cost_s_per_m: f64,
+    ) -> Self {
+        let n = grid.width * grid.height;
+        let scale = min_cost_s_per_m * grid.resolution_m;
+        let mut p = Self {
+            grid,
+            start,
+            last_start: start,
+            goal,
+            scale,
+            km: 0.0,
+            g: vec![f64::INFINITY; n],
+            rhs: vec![f64::INFINITY; n],
+            queued: vec![None; n],
+            open: BinaryHeap::new(),
+            expanded: 0,
+        };
+        let gi = p.idx(goal);
+        p.rhs[gi] = 0.0;
+        let k = p.key(goal);
+        p.push(gi, k);
+        p
+    }
+
+    pub fn grid(&self) -> &CostGrid {
+        &self.grid
+    }
+
+    pub fn start(&self) -> (usize, usize) {
+        self.start
+    }
+
+    pub fn goal(&self) -> (usize, usize) {
+        self.goal
+    }
+
+    fn idx(&self, c: (usize, usize)) -> usize {
+        c.1 * self.grid.width + c.0
+    }
+
+    fn cell(&self, i: usize) -> (usize, usize) {
+        (i % self.grid.width, i / self.grid.width)
+    }
+
+    fn key(&self, s: (usize, usize)) -> Key {
+        let i = self.idx(s);
+        let m = self.g[i].min(self.rhs[i]);
+        Key(m + octile(self.start, s, self.scale) + self.km, m)
+    }
+
+    fn push(&mut self, i: usize, k: Key) {
+        self.queued[i] = Some(k);
+        self.open.push(Entry(k, i));
+    }
+
+    /// The smallest live entry of the queue (stale ones are dropped).
+    fn top(&mut self) -> Option<(Key, usize)> {
+        while let Some(Entry(k, i)) = self.open.peek() {
+            if self.queued[*i] == Some(*k) {
+                return Some((*k, *i));
+            }
+            self.open.pop();
+        }
+        None
+    }
+
+    fn update_vertex(&mut self, u: (usize, usize)) {
+        let ui = self.idx(u);
+        if u != self.goal {
+            let best = self
+                .grid
+                .neighbours(u)
+                .map(|s| self.grid.step_cost(u, s) + self.g[self.idx(s)])
+                .fold(f64::INFINITY, f64::min);
+            self.rhs[ui] = best;
+        }
+        if self.g[ui] != self.rhs[ui] {
+            let k = self.key(u);
+            self.push(ui, k);
+        } else {
+            self.queued[ui] = None;
+        }
+    }
+
+    /// Runs the search until the start's cost is settled; returns it (`None`
+    /// if the goal cannot be reached).
+    pub fn compute(&mut self) -> Option<f64> {
+        loop {
+            let si = self.idx(self.start);
+            let Some((k_old, ui)) = self.top() else {
+                break;
+            };
+            if k_old >= self.key(self.start) && self.rhs[si] == self.g[si] {
+                break;
+            }
+            let u = self.cell(ui);
+            let k_new = self.key(u);
+            self.expanded += 1;
+            if k_old < k_new {
+                self.push(ui, k_new);
+            } else if self.g[ui] > self.rhs[ui] {
+                self.g[ui] = self.rhs[ui];
+                self.queued[ui] = None;
+                for p in self.grid.neighbours(u).collect::<Vec<_>>() {
+                    self.update_vertex(p);
+                }
+            } else {
+                self.g[ui] = f64::INFINITY;
+                for p in self.grid.neighbours(u).chain([u]).collect::<Vec<_>>() {
+                    self.update_vertex(p);
+                }
+            }
+        }
+        let c = self.g[self.idx(self.start)];
+        c.is_finite().then_some(c)
+    }
+
+    /// The robot is now at `start`.
+    pub fn move_start(&mut self, start: (usize, usize)) {
+        self.start = start;
+    }
+
+    /// Cell `(x, y)` now costs `cost_s_per_m`. Only the edges into it change,
+    /// so only its neighbours (and itself, whose out-edges may be blocked)
+    /// are updated. Returns whether anything changed.
+    pub fn set_cost(&mut self, x: usize, y: usize, cost_s_per_m: f32) -> bool {
+        let old = self.grid.get(x, y);
+        if old == cost_s_per_m || (old.is_nan() && cost_s_per_m.is_nan()) {
+            return false;
+        }
+        if self.last_start != self.start {
+            // The heuristic's origin moved since the last change: raise every
+            // queued key by that much instead of re-keying the queue.
+            self.km += octile(self.last_start, self.start, self.scale);
+            self.last_start = self.start;
+        }
+        self.grid.set(x, y, cost_s_per_m);
+        for p in self
+            .grid
+            .neighbours((x, y))
+            .chain([(x, y)])
+            .collect::<Vec<_>>()
+        {
+            self.update_vertex(p);
+        }
+        true
+    }
+
+    /// The current best path from the start to the goal, following the
+    /// cheapest successor; empty when there is none.
+    pub fn path(&self) -> Vec<(usize, usize)> {
+        let mut path = vec![self.start];
+        let mut c = self.start;
+        let limit = self.grid.width * self.grid.height;
+        while c != self.goal && path.len() <= limit {
+            let next = self
+                .grid
+                .neighbours(c)
+                .map(|s| (s, self.grid.step_cost(c, s) + self.g[self.idx(s)]))
+                .min_by(|a, b| a.1.total_cmp(&b.1));
+            match next {
+                Some((s, v)) if v.is_finite() => {
+                    path.push(s);
+                    c = s;
+                }
+                _ => return Vec::new(),
+            }
+        }
+        path
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    struct Lcg(u64);
+    impl Lcg {
+        fn next(&mut self) -> f64 {
+            self.0 = self
+                .0
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (self.0 >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
+    fn random_grid(rng: &mut Lcg, w: usize, h: usize) -> CostGrid {
+        let mut g = CostGrid::new(w, h, 1.0, 1.0);
+        for y in 0..h {
+            for x in 0..w {
+                let r = rng.next();
+                g.set(
+                    x,
+                    y,
+                    if r < 0.2 {
+                        f32::INFINITY
+                    } else {
+                        (0.2 + 3.0 * rng.next()) as f32
+                    },
+                );
+            }
+        }
+        g
+    }
+
+    #[test]
+    fn dstar_lite_matches_astar_on_random_grids_before_and_after_changes() {
+        let mut rng = Lcg(42);
+        let mut compared = 0;
+        for trial in 0..40 {
+            let (w, h) = (24, 18);
+            let mut grid = random_grid(&mut rng, w, h);
+            let (start, goal) = ((0, 0), (w - 1, h - 1));
+            grid.set(start.0, start.1, 1.0);
+            grid.set(goal.0, goal.1, 1.0);
+            let mut d = DStarLite::new(grid.clone(), start, goal, 0.2);
+            let check = |d: &mut DStarLite, grid: &CostGrid, what: &str| {
+                let want = astar(grid, d.start(), goal, 0.2).map(|(_, c)| c);
+                let got = d.compute();
+                match (want, got) {
+                    (Some(a), Some(b)) => {
+                        assert!(
+                            (a - b).abs() < 1e-6,
+                            "trial {trial} {what}: A* {a} vs D* Lite {b}"
+                        );
+                        let p = d.path();
+                        assert_eq!(p.first(), Some(&d.start()));
+                        assert_eq!(p.last(), Some(&goal));
+                        assert!(
+                            (grid.path_cost(&p) - a).abs() < 1e-6,
+                            "its path costs what it says"
+                        );
+                        1
+                    }
+                    (None, None) => 0,
+                    other => panic!("trial {trial} {what}: {other:?}"),
+                }
+            };
+            compared += check(&mut d, &grid, "initial");
+            // The robot moves two cells along its path, then cells change
+            // (some blocked, some cleared, some cheaper) around and ahead of it.
+            for round in 0..3 {
+                let p = d.path();
+                if p.len() > 3 {
+                    d.move_start(p[2]);
+                }
+                for _ in 0..25 {
+                    let (x, y) = (
+                        (rng.next() * w as f64) as usize,
+                        (rng.next() * h as f64) as usize,
+                    );
+                    if (x, y) == d.start() || (x, y) == goal {
+                        continue;
+                    }
+                    let c = if rng.next() < 0.3 {
+                        f32::INFINITY
+                    } else {
+                        (0.2 + 3.0 * rng.next()) as f32
+                    };
+                    grid.set(x, y, c);
+                    d.set_cost(x, y, c);
+                }
+                compared += check(&mut d, &grid, &format!("after change {round}"));
+            }
+        }
+        assert!(compared > 80, "only {compared} solvable cases");
+    }
+
+    #[test]
+    fn repairs_expand_fewer_vertices_than_planning_again() {
+        let mut grid = CostGrid::new(120, 120, 1.0, 1.0);
+        for y in 20..100 {
+            grid.set(60, y, f32::INFINITY);
+        }
+        let mut d = DStarLite::new(grid.clone(), (5, 60), (115, 60), 1.0);
+        d.compute().unwrap();
+        let first = d.expanded;
+        // One new obstacle cell near the far end of the path.
+        let p = d.path();
+        let (x, y) = p[p.len() - 10];
+        d.set_cost(x, y, f32::INFINITY);
+        grid.set(x, y, f32::INFINITY);
+        let cost = d.compute().unwrap();
+        let repair = d.expanded - first;
+        let (_, want) = astar(&grid, (5, 60), (115, 60), 1.0).unwrap();
+        assert!((cost - want).abs() < 1e-9);
+        assert!(
+            repair * 5 < first,
+            "repair expanded {repair}, first search {first}"
+        );
+    }
+
+    #[test]
+    fn no_path_through_a_closed_wall() {
+        let mut grid = CostGrid::new(10, 10, 1.0, 1.0);
+        for y in 0..10 {
+            grid.set(5, y, f32::INFINITY);
+        }
+        let mut d = DStarLite::new(grid.clone(), (0, 0), (9, 9), 1.0);
+        assert_eq!(d.compute(), None);
+        assert!(d.path().is_empty());
+        assert!(astar(&grid, (0, 0), (9, 9), 1.0).is_none());
+        // Open a door: found incrementally.
+        d.set_cost(5, 7, 1.0);
+        assert!(d.compute().is_some());
+        assert!(d.path().contains(&(5, 7)));
+    }
+}
