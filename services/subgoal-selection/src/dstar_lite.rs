@@ -14,13 +14,15 @@
 //! ```
 //! use farsight_subgoal_selection::dstar_lite::{CostGrid, DStarLite};
 //!
-//! // 5x3 grid of 1 s/m cells with a wall in column 2 except the top row.
+//! // 5x3 grid of 1 s/m cells with a wall in column 2 except row 0: the way
+//! // round is four diagonal steps, (0,2) (1,1) (2,0) (3,1) (4,2).
 //! let mut grid = CostGrid::new(5, 3, 1.0, 1.0);
 //! grid.set(2, 1, f32::INFINITY);
 //! grid.set(2, 2, f32::INFINITY);
 //! let mut planner = DStarLite::new(grid, (0, 2), (4, 2), 1.0);
 //! let cost = planner.compute().expect("a way around the wall");
-//! assert!((cost - (2.0 + 2.0 * 2f64.sqrt())).abs() < 1e-9);
+//! assert!((cost - 4.0 * 2f64.sqrt()).abs() < 1e-9);
+//! assert_eq!(planner.path(), vec![(0, 2), (1, 1), (2, 0), (3, 1), (4, 2)]);
 //! assert_eq!(planner.path().first(), Some(&(0, 2)));
 //! ```
 
