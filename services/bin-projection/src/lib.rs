@@ -7,6 +7,9 @@
 //! normalised by their sum and smoothed over time with an EMA. A bin no camera
 //! sees is *unobserved*, which is not the same as a bin with no affordance.
 //!
+//! [`fitam`] is FITAM's counterpart: far-field ensemble outputs per image
+//! slice -> polar (heading x range) cost bins with a measurement variance.
+//!
 //! ```
 //! use farsight_bin_projection::{BinGeometry, CameraBins, LrnBinsConfig, LrnBins};
 //! use farsight_interfaces::camera::{Camera, CameraModel, Mount};
@@ -20,6 +23,8 @@
 //! let out = bins.update(&[(map.project(&heatmap, 0.5))]);
 //! assert!(out.observed.iter().any(|&o| o) && !out.observed.iter().all(|&o| o));
 //! ```
+
+pub mod fitam;
 
 use farsight_interfaces::camera::Camera;
 use farsight_stage::{ConfigError, Validate};

@@ -1,0 +1,346 @@
+//! FITAM's far-field observation (section IV-C; the reference code's
+//! equations): the model sees one image slice per heading bin and outputs,
+//! per radial bin, the logits of an ensemble of classifiers over speed
+//! classes. Per (heading, radial) bin:
+//!
+//! - p = mean over members of softmax(logits);
+//! - class = argmax p, measurement z = 1 / class_speed (s/m);
+//! - variance R = 1 - max p (the reference code, the default), or the
+//!   normalised entropy of p (the paper's text, `variance = "entropy"`).
+//!
+//! Heading bins no slice looks into come out as "no measurement": cost NaN,
+//! variance infinite, which the Kalman update skips.
+//!
+//! ```
+//! use farsight_bin_projection::fitam::{ensemble_observation, FitamBinsConfig};
+//!
+//! let cfg = FitamBinsConfig::default(); // class speeds 0.5, 2.25, 4.25 m/s
+//! // One radial bin, two members, both sure of class 2 (the fast one).
+//! let logits = [0.0, 0.0, 9.0, 0.0, 0.0, 9.0];
+//! let cells = ensemble_observation(&logits, 1, 2, 3, &cfg).unwrap();
+//! assert_eq!(cells[0].class_id, 2);
+//! assert!((cells[0].cost_s_per_m - 1.0 / 4.25).abs() < 1e-6);
+//! assert!(cells[0].variance < 0.01);
+//! ```
+
+use farsight_interfaces::camera::Camera;
+use farsight_interfaces::msg::PolarCell;
+use farsight_stage::{ConfigError, Validate};
+use serde::{Deserialize, Serialize};
+use std::f64::consts::{PI, TAU};
+
+/// How the measurement variance R is derived from the class distribution.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum VarianceRule {
+    /// `1 - max p`, as the reference code.
+    #[default]
+    MaxProbability,
+    /// Entropy of p divided by ln(classes), as the paper's text.
+    Entropy,
+}
+
+/// FITAM's far-field bin parameters (simulated defaults).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FitamBinsConfig {
+    pub heading_bins: usize,
+    /// Radial bin edges, metres.
+    pub range_edges_m: Vec<f64>,
+    /// Speed of each class (m/s); its cost is the inverse.
+    pub class_speeds_mps: Vec<f64>,
+    pub variance: VarianceRule,
+}
+
+impl Default for FitamBinsConfig {
+    fn default() -> Self {
+        Self {
+            heading_bins: 32,
+            range_edges_m: vec![25.0, 50.0, 75.0, 100.0],
+            class_speeds_mps: vec![0.5, 2.25, 4.25],
+            variance: VarianceRule::MaxProbability,
+        }
+    }
+}
+
+impl Validate for FitamBinsConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        ConfigError::check(
+            (1..=360).contains(&self.heading_bins),
+            "fitam.heading_bins",
+            self.heading_bins,
+            "1..=360",
+        )?;
+        let edges_ok = self.range_edges_m.len() >= 2
+            && self.range_edges_m.len() <= farsight_interfaces::msg::MAX_RANGE_EDGES
+            && self.range_edges_m[0] >= 0.0
+            && self.range_edges_m.windows(2).all(|w| w[0] < w[1]);
+        ConfigError::check(
+            edges_ok,
+            "fitam.range_edges_m",
+            format!("{:?}", self.range_edges_m),
+            "2..=16 increasing, non-negative distances",
+        )?;
+        ConfigError::check(
+            self.class_speeds_mps.len() >= 2
+                && self
+                    .class_speeds_mps
+                    .iter()
+                    .all(|&s| s > 0.0 && s.is_finite()),
+            "fitam.class_speeds_mps",
+            format!("{:?}", self.class_speeds_mps),
+            "two or more positive speeds",
+        )
+    }
+}
+
+/// Why an ensemble output cannot be used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FitamError {
+    #[error("ensemble output holds {got} values, [{radial} radial x {members} members x {classes} classes] needs {want}")]
+    Size {
+        got: usize,
+        want: usize,
+        radial: usize,
+        members: usize,
+        classes: usize,
+    },
+    #[error("the model has {got} classes but class_speeds_mps lists {want}")]
+    Classes { got: usize, want: usize },
+    #[error("the model has {got} radial bins but range_edges_m describes {want}")]
+    Radial { got: usize, want: usize },
+    #[error("non-finite logit in the ensemble output")]
+    NonFinite,
+}
+
+/// One slice's ensemble logits `[radial, members, classes]` -> one polar cell
+/// per radial bin.
+pub fn ensemble_observation(
+    logits: &[f32],
+    radial: usize,
+    members: usize,
+    classes: usize,
+    cfg: &FitamBinsConfig,
+) -> Result<Vec<PolarCell>, FitamError> {
+    let want = radial * members * classes;
+    if logits.len() != want || members == 0 {
+        return Err(FitamError::Size {
+            got: logits.len(),
+            want,
+            radial,
+            members,
+            classes,
+        });
+    }
+    if classes != cfg.class_speeds_mps.len() {
+        return Err(FitamError::Classes {
+            got: classes,
+            want: cfg.class_speeds_mps.len(),
+        });
+    }
+    if logits.iter().any(|v| !v.is_finite()) {
+        return Err(FitamError::NonFinite);
+    }
+    let mut out = Vec::with_capacity(radial);
+    let mut p = vec![0f64; classes];
+    for r in 0..radial {
+        p.iter_mut().for_each(|v| *v = 0.0);
+        for m in 0..members {
+            let l = &logits[(r * members + m) * classes..][..classes];
+            let max = l.iter().copied().fold(f32::NEG_INFINITY, f32::max) as f64;
+            let e: Vec<f64> = l.iter().map(|&v| (v as f64 - max).exp()).collect();
+            let sum: f64 = e.iter().sum();
+            for (pc, ec) in p.iter_mut().zip(&e) {
+                *pc += ec / sum / members as f64;
+            }
+        }
+        let (class, &pmax) = p
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .expect("two or more classes");
+        let variance = match cfg.variance {
+            VarianceRule::MaxProbability => 1.0 - pmax,
+            VarianceRule::Entropy => {
+                -p.iter()
+                    .filter(|&&v| v > 0.0)
+                    .map(|&v| v * v.ln())
+                    .sum::<f64>()
+                    / (classes as f64).ln()
+            }
+        };
+        out.push(PolarCell {
+            cost_s_per_m: (1.0 / cfg.class_speeds_mps[class]) as f32,
+            variance: variance.max(0.0) as f32,
+            class_id: class as u32,
+            probability: pmax as f32,
+        });
+    }
+    Ok(out)
+}
+
+/// A polar cell that carries no measurement.
+pub const NO_MEASUREMENT: PolarCell = PolarCell {
+    cost_s_per_m: f32::NAN,
+    variance: f32::INFINITY,
+    class_id: u32::MAX,
+    probability: 0.0,
+};
+
+/// The heading bin each of `slices` vertical image slices looks into: the
+/// bearing of the slice's centre column on the principal row, through the
+/// camera model and mount. Bins start at -pi, as the LRN bins.
+pub fn slice_heading_bins(
+    camera: &Camera,
+    slices: usize,
+    heading_bins: usize,
+) -> Vec<Option<usize>> {
+    let (w, cy) = (camera.model.width as f64, camera.model.cy);
+    (0..slices)
+        .map(|s| {
+            let u = (s as f64 + 0.5) * w / slices as f64 - 0.5;
+            camera.pixel_bearing_rad(u, cy).map(|b| {
+                let a = (b + PI).rem_euclid(TAU);
+                ((a / (TAU / heading_bins as f64)) as usize).min(heading_bins - 1)
+            })
+        })
+        .collect()
+}
+
+/// A whole ensemble output `[slices, radial, members, classes]` -> polar
+/// cells, heading-major (`heading * radial + r`). Where two slices look into
+/// the same heading bin, the more certain (lower variance) one is kept.
+pub fn polar_observation(
+    logits: &[f32],
+    shape: [usize; 4],
+    slice_bins: &[Option<usize>],
+    cfg: &FitamBinsConfig,
+) -> Result<Vec<PolarCell>, FitamError> {
+    let [slices, radial, members, classes] = shape;
+    let want_radial = cfg.range_edges_m.len() - 1;
+    if radial != want_radial {
+        return Err(FitamError::Radial {
+            got: radial,
+            want: want_radial,
+        });
+    }
+    let per_slice = radial * members * classes;
+    if logits.len() != slices * per_slice {
+        return Err(FitamError::Size {
+            got: logits.len(),
+            want: slices * per_slice,
+            radial,
+            members,
+            classes,
+        });
+    }
+    let mut out = vec![NO_MEASUREMENT; cfg.heading_bins * radial];
+    for (s, bin) in slice_bins.iter().enumerate().take(slices) {
+        let Some(h) = *bin else { continue };
+        let cells = ensemble_observation(
+            &logits[s * per_slice..][..per_slice],
+            radial,
+            members,
+            classes,
+            cfg,
+        )?;
+        for (r, c) in cells.into_iter().enumerate() {
+            let slot = &mut out[h * radial + r];
+            if !(slot.variance <= c.variance) {
+                *slot = c;
+            }
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use farsight_interfaces::camera::{CameraModel, Mount};
+
+    #[test]
+    fn mean_of_member_softmax_by_hand() {
+        let cfg = FitamBinsConfig::default();
+        // Member 1: logits (0, ln 3, 0) -> p = (0.2, 0.6, 0.2).
+        // Member 2: logits (ln 2, ln 2, 0) -> p = (0.4, 0.4, 0.2).
+        // Mean (0.3, 0.5, 0.2): class 1 (2.25 m/s -> 0.444 s/m), R = 0.5.
+        let l = [0.0, 3f32.ln(), 0.0, 2f32.ln(), 2f32.ln(), 0.0];
+        let c = ensemble_observation(&l, 1, 2, 3, &cfg).unwrap()[0];
+        assert_eq!(c.class_id, 1);
+        assert!((c.probability - 0.5).abs() < 1e-6);
+        assert!((c.cost_s_per_m - 1.0 / 2.25).abs() < 1e-6);
+        assert!((c.variance - 0.5).abs() < 1e-6);
+        // The paper's entropy rule: -(0.3 ln .3 + .5 ln .5 + .2 ln .2) / ln 3.
+        let e = FitamBinsConfig {
+            variance: VarianceRule::Entropy,
+            ..cfg.clone()
+        };
+        let c = ensemble_observation(&l, 1, 2, 3, &e).unwrap()[0];
+        let want = -(0.3f64 * 0.3f64.ln() + 0.5 * 0.5f64.ln() + 0.2 * 0.2f64.ln()) / 3f64.ln();
+        assert!((c.variance as f64 - want).abs() < 1e-6, "{}", c.variance);
+    }
+
+    #[test]
+    fn bad_outputs_are_refused_with_the_reason() {
+        let cfg = FitamBinsConfig::default();
+        assert!(matches!(
+            ensemble_observation(&[0.0; 5], 1, 2, 3, &cfg),
+            Err(FitamError::Size {
+                got: 5,
+                want: 6,
+                ..
+            })
+        ));
+        assert_eq!(
+            ensemble_observation(&[0.0; 8], 1, 2, 4, &cfg),
+            Err(FitamError::Classes { got: 4, want: 3 })
+        );
+        let mut nan = [0.0f32; 6];
+        nan[3] = f32::NAN;
+        assert_eq!(
+            ensemble_observation(&nan, 1, 2, 3, &cfg),
+            Err(FitamError::NonFinite)
+        );
+        assert!(matches!(
+            polar_observation(&[0.0; 12], [1, 2, 2, 3], &[Some(0)], &cfg),
+            Err(FitamError::Radial { got: 2, want: 3 })
+        ));
+    }
+
+    #[test]
+    fn slices_land_in_their_heading_bins_and_the_rest_is_unmeasured() {
+        // 90 deg field of view: f = 32 on a 64 px image. 4 slices of 16 px,
+        // centres at u = 7.5, 23.5, 39.5, 55.5 -> bearings +35.1, +12.1, -12.1,
+        // -35.1 deg. With 16 bins of 22.5 deg from -180: bins 9, 8, 7, 6.
+        let cam = Camera::new(
+            0,
+            "front",
+            CameraModel::pinhole(64, 32, 32.0, 32.0, 31.5, 15.5),
+            Mount::from_xyz_rpy_deg([0.0; 3], [0.0; 3]),
+        );
+        let bins = slice_heading_bins(&cam, 4, 16);
+        assert_eq!(bins, vec![Some(9), Some(8), Some(7), Some(6)]);
+        let cfg = FitamBinsConfig {
+            heading_bins: 16,
+            ..Default::default()
+        };
+        // Every slice, radial bin and member votes class 0 (slow).
+        let logits: Vec<f32> = (0..4 * 3 * 2).flat_map(|_| [5.0, 0.0, 0.0]).collect();
+        let cells = polar_observation(&logits, [4, 3, 2, 3], &bins, &cfg).unwrap();
+        assert_eq!(cells.len(), 16 * 3);
+        for h in 0..16 {
+            for r in 0..3 {
+                let c = cells[h * 3 + r];
+                if (6..=9).contains(&h) {
+                    assert_eq!((c.class_id, c.cost_s_per_m), (0, 2.0));
+                } else {
+                    assert!(
+                        c.cost_s_per_m.is_nan() && c.variance.is_infinite(),
+                        "bin {h}"
+                    );
+                }
+            }
+        }
+    }
+}
