@@ -10,7 +10,6 @@
 //! by near-field sensing, repeat. Library code only: the fused map of
 //! `farsight-costmap-fusion` and the D* Lite of `farsight-subgoal-selection`.
 
-use farsight_costmap_fusion::grid::cell_of;
 use farsight_costmap_fusion::kalman::FarFieldConfig;
 use farsight_costmap_fusion::map::FusionMap;
 use farsight_costmap_fusion::swath::{for_each_swath_cell, PolarGeometry};
@@ -194,4 +193,144 @@ fn far_field_finds_the_road_behind_the_forest() {
         fitam.cost_s,
         base.cost_s
     );
+}
+
+/// The planning graph as processes: costmap-fusion fixes a wall from a
+/// near-field costmap (as a lidar stack or the simulator would publish),
+/// subgoal-selection plans around it with D* Lite, and velocity-servoing
+/// tracks the planned path by carrot.
+mod graph {
+    use farsight_interfaces::msg::*;
+    use farsight_interfaces::topics;
+    use farsight_tests::Namespace;
+    use std::time::{Duration, Instant};
+
+    #[test]
+    fn a_wall_seen_by_near_field_sensing_is_planned_around_and_driven() {
+        let ns = Namespace::new("planning");
+        let bus = ns.bus("planning-test");
+        let fusion_cfg = ns.write(
+            "costmap-fusion.toml",
+            "width_cells = 61\nheight_cells = 61\npublish_rate_hz = 5.0\n",
+        );
+        let planner_cfg = ns.write(
+            "subgoal-selection.toml",
+            "method = \"dstar_lite\"\nsubgoal_distance_m = 5.0\n[planner]\nmargin_m = 15.0\n",
+        );
+        let servo_cfg = ns.write("velocity-servoing.toml", "track = \"path\"\n");
+        let fused = bus.slice_subscriber(&topics::costmap("fused")).unwrap();
+        let planned = bus.subscriber(&topics::path("planned")).unwrap();
+        let cmds = bus.subscriber(&topics::velocity_command()).unwrap();
+        let pose = bus.publisher(&topics::pose()).unwrap();
+        let goal = bus.publisher(&topics::goal()).unwrap();
+        let local = bus
+            .slice_publisher(&topics::costmap("local"), 21 * 21)
+            .unwrap();
+        let fusion = ns.start_stage("farsight-costmap-fusion", "costmap-fusion", &fusion_cfg);
+        let planner = ns.start_stage(
+            "farsight-subgoal-selection",
+            "subgoal-selection",
+            &planner_cfg,
+        );
+        let servo = ns.start_stage(
+            "farsight-velocity-servoing",
+            "velocity-servoing",
+            &servo_cfg,
+        );
+
+        // Near-field map 21x21 m around the robot at the origin: free ground
+        // (0.5 s/m) with a lethal wall at x = 8 m, y in -6..=6 m.
+        let header = CostmapHeader {
+            stamp: Stamp::new(1, 0),
+            layer: CostmapLayer::LOCAL,
+            width: 21,
+            height: 21,
+            resolution_m: 1.0,
+            x_min_m: -10.0,
+            y_max_m: 10.0,
+        };
+        let cells: Vec<CostCell> = (0..21 * 21)
+            .map(|k| {
+                let (x, y) = (-10 + (k % 21) as i64, 10 - (k / 21) as i64);
+                let wall = x == 8 && y.abs() <= 6;
+                CostCell {
+                    cost_s_per_m: if wall { f32::INFINITY } else { 0.5 },
+                    variance: 0.0,
+                }
+            })
+            .collect();
+        let end = Instant::now() + Duration::from_secs(20);
+        let mut around = None;
+        while Instant::now() < end && around.is_none() {
+            pose.publish(&Pose::default()).unwrap();
+            goal.publish(&NavGoal {
+                kind: GoalKind::LOCAL,
+                x_m: 20.0,
+                tolerance_m: 1.0,
+                ..Default::default()
+            })
+            .unwrap();
+            local.publish_copy(header, &cells).unwrap();
+            if let Some(p) = planned.latest().unwrap() {
+                let pts = p.points.as_slice();
+                // Around the wall: some point beyond |y| = 6 before x = 8.
+                if p.frame == PathFrame::WORLD
+                    && pts.iter().any(|q| q[1].abs() > 6.5 && q[0] <= 9.0)
+                {
+                    around = Some(p);
+                }
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let p = around.unwrap_or_else(|| {
+            panic!(
+                "no path around the wall; last {:?}\nfusion:\n{}\nplanner:\n{}",
+                planned
+                    .latest()
+                    .unwrap()
+                    .map(|p| p.points.as_slice().to_vec()),
+                fusion.stderr_so_far(),
+                planner.stderr_so_far()
+            )
+        });
+        let pts = p.points.as_slice();
+        assert!(
+            pts.iter()
+                .all(|q| !((q[0] - 8.0).abs() < 0.5 && q[1].abs() <= 6.5)),
+            "never through the wall: {pts:?}"
+        );
+        let last = pts.last().unwrap();
+        assert!(
+            (last[0] - 20.0).abs() < 1e-3 && last[1].abs() < 1e-3,
+            "ends at the goal: {last:?}"
+        );
+        // The fused map holds the wall as lethal at (8, 0).
+        let f = fused.latest().unwrap().expect("a fused costmap");
+        let h = *f.header();
+        let j = ((8.0 - h.x_min_m) / h.resolution_m as f64).round() as usize;
+        let i = ((h.y_max_m - 0.0) / h.resolution_m as f64).round() as usize;
+        assert!(f.data()[i * h.width as usize + j]
+            .cost_s_per_m
+            .is_infinite());
+        // The servo follows the path: forward and turning toward the detour.
+        let end = Instant::now() + Duration::from_secs(10);
+        loop {
+            pose.publish(&Pose::default()).unwrap();
+            if let Some(c) = cmds.latest().unwrap() {
+                if c.reason == CommandReason::TRACKING
+                    && c.linear_mps > 0.0
+                    && c.angular_radps.abs() > 0.05
+                {
+                    break;
+                }
+            }
+            assert!(
+                Instant::now() < end,
+                "servo never tracked the path: {:?}\n{}",
+                cmds.latest(),
+                servo.stderr_so_far()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
 }

@@ -496,6 +496,23 @@ pub struct Pose {
     pub gps: GpsFix,
 }
 
+impl CostmapHeader {
+    /// World (ENU) centre of payload cell `k` (row-major, row 0 north).
+    pub fn cell_centre_m(&self, k: usize) -> [f64; 2] {
+        let w = (self.width as usize).max(1);
+        let res = self.resolution_m as f64;
+        [
+            self.x_min_m + (k % w) as f64 * res,
+            self.y_max_m - (k / w) as f64 * res,
+        ]
+    }
+
+    /// Cells the payload must hold.
+    pub fn cell_count(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+}
+
 impl Pose {
     /// A world (ENU) point in this pose's robot frame (x ahead, y left).
     pub fn to_robot_frame(&self, world_m: [f64; 2]) -> [f64; 2] {

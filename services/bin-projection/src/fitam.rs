@@ -246,7 +246,7 @@ pub fn polar_observation(
         )?;
         for (r, c) in cells.into_iter().enumerate() {
             let slot = &mut out[h * radial + r];
-            if !(slot.variance <= c.variance) {
+            if c.variance < slot.variance {
                 *slot = c;
             }
         }

@@ -29,4 +29,5 @@ pub mod grid;
 pub mod hip;
 pub mod kalman;
 pub mod map;
+pub mod stage;
 pub mod swath;

@@ -1,1 +1,158 @@
-fn main() {}
+//! `farsight-costmap-fusion`: FITAM's fused costmap as a stage. Polar bins
+//! (`bins/polar`) update the far-field Kalman layer at the pose they arrive
+//! with; near-field costmaps from other systems (`costmap/<name>`) fix cells;
+//! the window follows the pose. The fused map and its layers go out at a
+//! fixed rate on `costmap/fused`, `costmap/far_field` and `costmap/near_field`.
+
+use anyhow::Result;
+use farsight_costmap_fusion::map::FusionMap;
+use farsight_costmap_fusion::stage::FusionStageConfig;
+use farsight_costmap_fusion::swath::PolarGeometry;
+use farsight_interfaces::clock::{Clock, WallClock};
+use farsight_interfaces::msg::{CostmapLayer, HealthState, Pose, Stamp};
+use farsight_interfaces::topics;
+use farsight_interfaces::transport::ipc::{self, Bus, Wake};
+use farsight_stage::{load_config, Health, StageArgs};
+use std::ops::ControlFlow;
+use std::time::Duration;
+
+const STAGE: &str = "costmap-fusion";
+
+fn main() {
+    farsight_stage::run_main(STAGE, run);
+}
+
+fn run() -> Result<()> {
+    let args = StageArgs::parse(STAGE)?;
+    farsight_stage::init_tracing(args.log_format);
+    let config: FusionStageConfig = load_config(args.config.as_deref())?;
+    let bus = Bus::open(STAGE)?;
+    let poses = bus.subscriber(&topics::pose())?;
+    let polar = bus.slice_subscriber(&topics::polar_bins())?;
+    let locals = config
+        .local_costmaps
+        .iter()
+        .map(|n| bus.slice_subscriber(&topics::costmap(n)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let cells = config.width_cells * config.height_cells;
+    let outputs = [
+        (CostmapLayer::FUSED, "fused"),
+        (CostmapLayer::FAR_FIELD, "far_field"),
+        (CostmapLayer::LOCAL, "near_field"),
+    ]
+    .map(|(layer, name)| {
+        bus.slice_publisher(&topics::costmap(name), cells)
+            .map(|p| (layer, p))
+    });
+    let outputs = outputs.into_iter().collect::<Result<Vec<_>, _>>()?;
+    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
+    farsight_stage::announce_ready(STAGE);
+
+    let clock = WallClock;
+    let mut map = FusionMap::new(
+        config.width_cells,
+        config.height_cells,
+        config.resolution_m,
+        config.far_field,
+    );
+    let mut pose: Option<Pose> = None;
+    let mut last_stamp = Stamp::default();
+    let period_ns = (1e9 / config.publish_rate_hz) as u64;
+    let mut next_publish = clock.now_ns();
+    let mut listeners = vec![polar.listener()];
+    listeners.extend(locals.iter().map(|l| l.listener()));
+    ipc::wait_loop(&listeners, Some(Duration::from_millis(50)), |wake| {
+        let now = clock.now_ns();
+        if let Ok(Some(p)) = poses.latest() {
+            if p.position_m.iter().all(|v| v.is_finite()) && p.yaw_rad.is_finite() {
+                map.recenter(p.position_m[0], p.position_m[1]);
+                pose = Some(p);
+            } else {
+                health.dropped(&format_args!("non-finite pose {:?}", p.position_m));
+            }
+        }
+        match wake {
+            Wake::Input(0) => match (polar.latest(), &pose) {
+                (Ok(Some(s)), Some(p)) => {
+                    health.input();
+                    let h = *s.header();
+                    let geometry = PolarGeometry {
+                        heading_bins: h.heading_bins as usize,
+                        first_heading_start_rad: h.first_heading_start_rad as f64,
+                        heading_width_rad: h.heading_width_rad as f64,
+                        range_edges_m: h
+                            .range_edges_m
+                            .as_slice()
+                            .iter()
+                            .map(|&e| e as f64)
+                            .collect(),
+                    };
+                    let want = geometry.heading_bins * geometry.radial_bins();
+                    if s.data().len() != want {
+                        health.dropped(&format_args!(
+                            "polar bins hold {} cells, {} heading x {} radial bins need {want}",
+                            s.data().len(),
+                            geometry.heading_bins,
+                            geometry.radial_bins()
+                        ));
+                    } else if config.use_far_field {
+                        let u = map.observe_far_field(
+                            &geometry,
+                            s.data(),
+                            p.position_m[0],
+                            p.position_m[1],
+                            p.yaw_rad,
+                        );
+                        map.add_process_noise();
+                        last_stamp = h.stamp;
+                        tracing::debug!(?u, "far-field update");
+                    }
+                }
+                (Ok(Some(_)), None) => health.dropped(&"polar bins before any pose"),
+                (Err(e), _) => health.dropped(&e),
+                _ => {}
+            },
+            Wake::Input(k) => match locals[k - 1].latest() {
+                Ok(Some(s)) => {
+                    health.input();
+                    let h = *s.header();
+                    if h.cell_count() != s.data().len()
+                        || h.resolution_m.is_nan()
+                        || h.resolution_m <= 0.0
+                    {
+                        health.dropped(&format_args!(
+                            "costmap/{}: {}x{} header with {} cells",
+                            config.local_costmaps[k - 1],
+                            h.width,
+                            h.height,
+                            s.data().len()
+                        ));
+                    } else {
+                        map.apply_local_costmap(&h, s.data());
+                        last_stamp = h.stamp;
+                    }
+                }
+                Ok(None) => {}
+                Err(e) => health.dropped(&e),
+            },
+            Wake::Tick => {}
+        }
+        if now >= next_publish && pose.is_some() {
+            next_publish = now + period_ns;
+            for (layer, publisher) in &outputs {
+                let (header, cells) = map.export(last_stamp, *layer, config.use_far_field);
+                if let Err(e) = publisher.publish_copy(header, &cells) {
+                    health.dropped(&e);
+                }
+            }
+            health.set(HealthState::OK, "");
+            health.output(last_stamp, now);
+        } else if pose.is_none() {
+            health.set(HealthState::DEGRADED, "no pose yet: the map has no place");
+        }
+        health.tick(now);
+        ControlFlow::Continue(())
+    })?;
+    health.stopping(clock.now_ns());
+    Ok(())
+}

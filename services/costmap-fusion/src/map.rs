@@ -6,7 +6,7 @@
 //! variance is under the threshold, else the unknown cost; with the far-field
 //! layer off (the "no far-field" baseline) unobserved cells are simply unknown.
 
-use crate::grid::ScrollingGrid;
+use crate::grid::{cell_of, ScrollingGrid};
 use crate::kalman::{kalman_update, FarFieldConfig, KalmanCell};
 use crate::swath::{for_each_swath_cell, PolarGeometry};
 use farsight_interfaces::msg::{CostCell, CostmapHeader, CostmapLayer, PolarCell, Stamp};
@@ -191,19 +191,11 @@ impl FusionMap {
     /// stack, the simulator's near-field sensor) into the local layer. Cells
     /// whose cost is NaN were not observed. Returns how many were fixed.
     pub fn apply_local_costmap(&mut self, header: &CostmapHeader, cells: &[CostCell]) -> usize {
-        let (w, h) = (header.width as usize, header.height as usize);
-        let res = header.resolution_m as f64;
+        let r = self.local.resolution_m();
         let mut fixed = 0;
-        for (k, c) in cells.iter().enumerate().take(w * h) {
-            let (i, j) = (k / w, k % w);
-            let x = header.x_min_m + j as f64 * res;
-            let y = header.y_max_m - i as f64 * res;
-            let r = self.local.resolution_m();
-            fixed += self.fix_local(
-                crate::grid::cell_of(x, r),
-                crate::grid::cell_of(y, r),
-                c.cost_s_per_m,
-            ) as usize;
+        for (k, c) in cells.iter().enumerate().take(header.cell_count()) {
+            let [x, y] = header.cell_centre_m(k);
+            fixed += self.fix_local(cell_of(x, r), cell_of(y, r), c.cost_s_per_m) as usize;
         }
         fixed
     }

@@ -12,5 +12,6 @@
 
 pub mod dstar_lite;
 pub mod lrn_head;
+pub mod planner;
 pub mod povnav;
 pub mod stage;

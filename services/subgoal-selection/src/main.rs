@@ -1,7 +1,9 @@
-//! `farsight-subgoal-selection`: POVNav on the navigability image, or the LRN
-//! head on the angular bins, turned into a [`Subgoal`] for the servo stage
-//! (with the visual path and the features that explain it). Without a goal it
-//! publishes nothing, so the servo stage goes stale and the robot stays put.
+//! `farsight-subgoal-selection`: POVNav on the navigability image, the LRN
+//! head on the angular bins, or D* Lite on the fused costmap, turned into a
+//! [`Subgoal`] for the servo stage (with the path and the features that
+//! explain it; D* Lite's world path goes out on `nav/path/planned` for the
+//! servo's carrot tracking). Without a goal it publishes nothing, so the servo
+//! stage goes stale and the robot stays put.
 
 use anyhow::Result;
 use farsight_interfaces::camera::Camera;
@@ -13,6 +15,7 @@ use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
 use farsight_stage::{load_config, Health, StageArgs};
 use farsight_subgoal_selection::lrn_head::LrnHead;
+use farsight_subgoal_selection::planner::WorldPlanner;
 use farsight_subgoal_selection::povnav::{plan, safe_half_widths, Mode};
 use farsight_subgoal_selection::stage::SubgoalStageConfig;
 use std::ops::ControlFlow;
@@ -41,6 +44,9 @@ fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
     farsight_stage::init_tracing(args.log_format);
     let config: SubgoalStageConfig = load_config(args.config.as_deref())?;
+    if config.method == "dstar_lite" {
+        return run_dstar_lite(&config);
+    }
     let mut tracker =
         GoalTracker::anchored_at(config.anchor_latitude_deg, config.anchor_longitude_deg)?;
     let povnav = config.method == "povnav";
@@ -251,6 +257,148 @@ fn run() -> Result<()> {
         }
         ControlFlow::Continue(())
     })?;
+    health.stopping(clock.now_ns());
+    Ok(())
+}
+
+/// The D* Lite loop: keep a world-fixed planner for the current goal, feed it
+/// each fused costmap, replan from the robot's cell, publish the path and a
+/// subgoal `subgoal_distance_m` along it.
+fn run_dstar_lite(config: &SubgoalStageConfig) -> Result<()> {
+    let mut tracker =
+        GoalTracker::anchored_at(config.anchor_latitude_deg, config.anchor_longitude_deg)?;
+    let bus = Bus::open(STAGE)?;
+    let costmaps = bus.slice_subscriber(&topics::costmap(&config.costmap))?;
+    let poses = bus.subscriber(&topics::pose())?;
+    let goals = bus.subscriber(&topics::goal())?;
+    let subgoals = bus.publisher(&topics::subgoal())?;
+    let planned = bus.publisher(&topics::path("planned"))?;
+    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
+    farsight_stage::announce_ready(STAGE);
+
+    let clock = WallClock;
+    let mut planner: Option<WorldPlanner> = None;
+    let mut pose: Option<Pose> = None;
+    let mut stamp = Stamp::default();
+    let mut dirty = true;
+    let period_ns = (1e9 / config.replan_rate_hz) as u64;
+    let mut next_plan = 0u64;
+    ipc::wait_loop(
+        &[costmaps.listener()],
+        Some(Duration::from_millis(50)),
+        |_| {
+            let now = clock.now_ns();
+            health.tick(now);
+            if let Ok(Some(p)) = poses.latest() {
+                tracker.set_pose(p);
+                pose = Some(p);
+            }
+            if let Ok(Some(g)) = goals.latest() {
+                tracker.set_goal(g);
+            }
+            let (Some(p), Some((bearing, distance))) = (pose, tracker.goal_in_robot_frame()) else {
+                health.set(
+                    HealthState::DEGRADED,
+                    "no goal (or pose) yet: nothing to plan",
+                );
+                return ControlFlow::Continue(());
+            };
+            let robot = [p.position_m[0], p.position_m[1]];
+            let goal = p.to_world_frame([distance * bearing.cos(), distance * bearing.sin()]);
+            let res = config.planner.resolution_m;
+            if planner.as_ref().is_none_or(|pl| {
+                let g = pl.goal_m();
+                (g[0] - goal[0]).hypot(g[1] - goal[1]) > res
+            }) {
+                tracing::info!(
+                    goal_x_m = goal[0],
+                    goal_y_m = goal[1],
+                    "new goal: planning grid built"
+                );
+                planner = Some(WorldPlanner::new(robot, goal, &config.planner));
+                dirty = true;
+            }
+            let pl = planner.as_mut().expect("just built");
+            match costmaps.latest() {
+                Ok(Some(c)) => {
+                    health.input();
+                    let h = *c.header();
+                    if h.cell_count() != c.data().len() {
+                        health.dropped(&format_args!(
+                            "costmap {}x{} header with {} cells",
+                            h.width,
+                            h.height,
+                            c.data().len()
+                        ));
+                    } else {
+                        dirty |= pl.apply_costmap(&h, c.data()) > 0;
+                        stamp = h.stamp;
+                    }
+                }
+                Ok(None) => {}
+                Err(e) => health.dropped(&e),
+            }
+            if !dirty && now < next_plan {
+                return ControlFlow::Continue(());
+            }
+            dirty = false;
+            next_plan = now + period_ns;
+            let (path, cost_s) = match pl.plan(robot) {
+                Ok(r) => r,
+                Err(e) => {
+                    health.set(HealthState::DEGRADED, &e.to_string());
+                    return ControlFlow::Continue(());
+                }
+            };
+            tracing::debug!(
+                cost_s,
+                cells = path.len(),
+                expanded = pl.expanded(),
+                "planned"
+            );
+            let points: Vec<[f32; 2]> = path
+                .iter()
+                .take(MAX_PATH_POINTS)
+                .map(|q| [q[0] as f32, q[1] as f32])
+                .collect();
+            let msg = Path {
+                stamp,
+                frame: PathFrame::WORLD,
+                camera_id: 0,
+                points: FixedVec::from_slice(&points).unwrap_or_default(),
+            };
+            // The subgoal: the first path point subgoal_distance_m away (or the end).
+            let target = path
+                .iter()
+                .map(|&q| p.to_robot_frame(q))
+                .find(|r| r[0].hypot(r[1]) >= config.subgoal_distance_m)
+                .or_else(|| path.last().map(|&q| p.to_robot_frame(q)))
+                .unwrap_or([0.0, 0.0]);
+            let subgoal = Subgoal {
+                stamp,
+                source: SubgoalSource::DSTAR_LITE,
+                mode: ServoMode::SAFE,
+                heading_rad: target[1].atan2(target[0]) as f32,
+                x_m: target[0] as f32,
+                y_m: target[1] as f32,
+                image_u_px: f32::NAN,
+                image_v_px: f32::NAN,
+                proximity_lambda_px: f32::NAN,
+                alignment_phi_rad: f32::NAN,
+            };
+            match planned
+                .publish(&msg)
+                .and_then(|()| subgoals.publish(&subgoal))
+            {
+                Ok(()) => {
+                    health.set(HealthState::OK, "");
+                    health.output(stamp, now);
+                }
+                Err(e) => health.dropped(&e),
+            }
+            ControlFlow::Continue(())
+        },
+    )?;
     health.stopping(clock.now_ns());
     Ok(())
 }

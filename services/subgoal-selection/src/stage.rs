@@ -1,11 +1,14 @@
 //! The subgoal-selection stage's config (`subgoal-selection.toml`, defaults shown):
 //!
 //! ```toml
-//! method = "povnav"              # "povnav", "lrn" or "goal_heuristic"
+//! method = "povnav"              # "povnav", "lrn", "goal_heuristic" or "dstar_lite"
 //! camera = "front"               # povnav: reads perception/<camera>/navigability
 //! robot_width_m = 0.8            # povnav: footprint for the safe visual path
 //! safety_margin_m = 0.2
-//! subgoal_distance_m = 25.0      # lrn: the heading becomes a subgoal this far out
+//! subgoal_distance_m = 25.0      # lrn: the heading becomes a subgoal this far out;
+//!                                # dstar_lite: the subgoal is this far along the path
+//! costmap = "fused"              # dstar_lite: plans on costmap/<costmap>
+//! replan_rate_hz = 2.0           # dstar_lite: at most this often (and on each costmap)
 //! path_max_range_m = 50.0        # povnav: robot-frame path points further out are dropped
 //!                                # (near the horizon line, ground projection is ill-conditioned)
 //! health_rate_hz = 1.0
@@ -13,9 +16,11 @@
 //!
 //! [povnav]                       # see farsight_subgoal_selection::povnav::PovnavConfig
 //! [lrn]                          # see farsight_subgoal_selection::lrn_head::LrnHeadConfig (Spot preset)
+//! [planner]                      # see farsight_subgoal_selection::planner::WorldPlannerConfig
 //! ```
 
 use crate::lrn_head::LrnHeadConfig;
+use crate::planner::WorldPlannerConfig;
 use crate::povnav::PovnavConfig;
 use farsight_stage::{ConfigError, Validate};
 use serde::{Deserialize, Serialize};
@@ -29,11 +34,14 @@ pub struct SubgoalStageConfig {
     pub safety_margin_m: f64,
     pub subgoal_distance_m: f64,
     pub path_max_range_m: f64,
+    pub costmap: String,
+    pub replan_rate_hz: f64,
     pub health_rate_hz: f64,
     pub anchor_latitude_deg: Option<f64>,
     pub anchor_longitude_deg: Option<f64>,
     pub povnav: PovnavConfig,
     pub lrn: LrnHeadConfig,
+    pub planner: WorldPlannerConfig,
 }
 
 impl Default for SubgoalStageConfig {
@@ -45,11 +53,14 @@ impl Default for SubgoalStageConfig {
             safety_margin_m: 0.2,
             subgoal_distance_m: 25.0,
             path_max_range_m: 50.0,
+            costmap: "fused".into(),
+            replan_rate_hz: 2.0,
             health_rate_hz: 1.0,
             anchor_latitude_deg: None,
             anchor_longitude_deg: None,
             povnav: PovnavConfig::default(),
             lrn: LrnHeadConfig::default(),
+            planner: WorldPlannerConfig::default(),
         }
     }
 }
@@ -57,10 +68,18 @@ impl Default for SubgoalStageConfig {
 impl Validate for SubgoalStageConfig {
     fn validate(&self) -> Result<(), ConfigError> {
         ConfigError::check(
-            ["povnav", "lrn", "goal_heuristic"].contains(&self.method.as_str()),
+            ["povnav", "lrn", "goal_heuristic", "dstar_lite"].contains(&self.method.as_str()),
             "method",
             &self.method,
-            "\"povnav\", \"lrn\" or \"goal_heuristic\"",
+            "\"povnav\", \"lrn\", \"goal_heuristic\" or \"dstar_lite\"",
+        )?;
+        farsight_interfaces::topics::validate_name(&self.costmap)
+            .map_err(|e| ConfigError::invalid("costmap", &self.costmap, e.why))?;
+        ConfigError::check(
+            self.replan_rate_hz > 0.0 && self.replan_rate_hz <= 100.0,
+            "replan_rate_hz",
+            self.replan_rate_hz,
+            "0 < rate <= 100 Hz",
         )?;
         farsight_interfaces::topics::validate_name(&self.camera)
             .map_err(|e| ConfigError::invalid("camera", &self.camera, e.why))?;
@@ -96,6 +115,7 @@ impl Validate for SubgoalStageConfig {
         )?;
         farsight_stage::check_anchor(self.anchor_latitude_deg, self.anchor_longitude_deg)?;
         self.povnav.validate()?;
-        self.lrn.validate()
+        self.lrn.validate()?;
+        self.planner.validate()
     }
 }

@@ -1,0 +1,107 @@
+//! The costmap-fusion stage's config (`costmap-fusion.toml`, defaults shown):
+//!
+//! ```toml
+//! width_cells = 201              # the window that scrolls with the robot
+//! height_cells = 201             # (FITAM: 1 m cells, predictions out to 100 m)
+//! resolution_m = 1.0
+//! use_far_field = true           # false: the "no far-field" baseline
+//! local_costmaps = ["local"]     # near-field costmaps from other systems: costmap/<name>
+//!                                # (NaN cells = not observed; inf = lethal)
+//! publish_rate_hz = 2.0          # costmap/fused, costmap/far_field, costmap/near_field
+//! health_rate_hz = 1.0
+//!
+//! [far_field]                    # see farsight_costmap_fusion::kalman::FarFieldConfig
+//! initial_mean_s_per_m = 1.0
+//! initial_variance = 0.4
+//! process_noise = 0.001
+//! variance_threshold = 0.4
+//! unknown_cost_s_per_m = 1.0
+//! ```
+
+use crate::kalman::FarFieldConfig;
+use farsight_stage::{ConfigError, Validate};
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FusionStageConfig {
+    pub width_cells: usize,
+    pub height_cells: usize,
+    pub resolution_m: f64,
+    pub use_far_field: bool,
+    pub local_costmaps: Vec<String>,
+    pub publish_rate_hz: f64,
+    pub health_rate_hz: f64,
+    pub far_field: FarFieldConfig,
+}
+
+impl Default for FusionStageConfig {
+    fn default() -> Self {
+        Self {
+            width_cells: 201,
+            height_cells: 201,
+            resolution_m: 1.0,
+            use_far_field: true,
+            local_costmaps: vec!["local".into()],
+            publish_rate_hz: 2.0,
+            health_rate_hz: 1.0,
+            far_field: FarFieldConfig::default(),
+        }
+    }
+}
+
+impl Validate for FusionStageConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        for (k, v) in [
+            ("width_cells", self.width_cells),
+            ("height_cells", self.height_cells),
+        ] {
+            ConfigError::check((3..=4001).contains(&v), k, v, "3..=4001 cells")?;
+        }
+        ConfigError::check(
+            self.resolution_m > 0.0 && self.resolution_m.is_finite(),
+            "resolution_m",
+            self.resolution_m,
+            "a positive cell size in metres",
+        )?;
+        for c in &self.local_costmaps {
+            ConfigError::check(
+                !["fused", "far_field", "near_field"].contains(&c.as_str()),
+                "local_costmaps",
+                c,
+                "the name of another system's costmap, not one this stage publishes",
+            )?;
+            farsight_interfaces::topics::validate_name(c)
+                .map_err(|e| ConfigError::invalid("local_costmaps", c, e.why))?;
+        }
+        for (k, v) in [
+            ("publish_rate_hz", self.publish_rate_hz),
+            ("health_rate_hz", self.health_rate_hz),
+        ] {
+            ConfigError::check(v > 0.0 && v <= 1000.0, k, v, "0 < rate <= 1000 Hz")?;
+        }
+        self.far_field.validate()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bad_values_are_named() {
+        let e =
+            farsight_stage::parse_config::<FusionStageConfig>("resolution_m = -1.0\n", "t.toml")
+                .unwrap_err()
+                .to_string();
+        assert!(e.contains("resolution_m") && e.contains("-1"), "{e}");
+        let e = farsight_stage::parse_config::<FusionStageConfig>(
+            "local_costmaps = [\"fused\"]\n",
+            "t.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("local_costmaps"), "{e}");
+        assert!(farsight_stage::parse_config::<FusionStageConfig>("", "t.toml").is_ok());
+    }
+}

@@ -1,0 +1,242 @@
+//! D* Lite on the fused costmap in the world frame, for the subgoal stage
+//! (FITAM section IV-E). The planning grid is fixed in the world: it covers
+//! the start and the goal with a margin, so the incremental search survives
+//! the costmap window scrolling with the robot. Cells the costmap has never
+//! covered plan at the unknown cost; each costmap message hands D* Lite only
+//! the cells whose cost changed.
+//!
+//! ```
+//! use farsight_subgoal_selection::planner::{WorldPlanner, WorldPlannerConfig};
+//!
+//! let cfg = WorldPlannerConfig::default();
+//! let mut p = WorldPlanner::new([0.0, 0.0], [30.0, 0.0], &cfg);
+//! let (path, cost_s) = p.plan([0.0, 0.0]).unwrap();
+//! assert_eq!(path.last(), Some(&[30.0, 0.0]));
+//! assert!((cost_s - 30.0).abs() < 1e-9); // 30 m at the unknown cost, 1 s/m
+//! ```
+
+use crate::dstar_lite::{CostGrid, DStarLite};
+use farsight_interfaces::msg::{CostCell, CostmapHeader};
+use farsight_stage::{ConfigError, Validate};
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct WorldPlannerConfig {
+    pub resolution_m: f64,
+    /// Room around the start-goal box, metres.
+    pub margin_m: f64,
+    /// Cost of never-seen cells (FITAM: 1 s/m).
+    pub unknown_cost_s_per_m: f32,
+    /// The cheapest cost any cell can have; scales the heuristic (FITAM's
+    /// fastest class, 4.25 m/s, is 0.235 s/m; a road in its worlds is 0.2).
+    pub min_cost_s_per_m: f64,
+    /// The largest grid side, cells (memory bound: g, rhs and cost per cell).
+    pub max_side_cells: usize,
+}
+
+impl Default for WorldPlannerConfig {
+    fn default() -> Self {
+        Self {
+            resolution_m: 1.0,
+            margin_m: 100.0,
+            unknown_cost_s_per_m: 1.0,
+            min_cost_s_per_m: 0.2,
+            max_side_cells: 4000,
+        }
+    }
+}
+
+impl Validate for WorldPlannerConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        for (k, v) in [
+            ("planner.resolution_m", self.resolution_m),
+            ("planner.min_cost_s_per_m", self.min_cost_s_per_m),
+            (
+                "planner.unknown_cost_s_per_m",
+                self.unknown_cost_s_per_m as f64,
+            ),
+        ] {
+            ConfigError::check(v > 0.0 && v.is_finite(), k, v, "a positive number")?;
+        }
+        ConfigError::check(
+            self.margin_m >= 0.0,
+            "planner.margin_m",
+            self.margin_m,
+            "a distance in metres",
+        )?;
+        ConfigError::check(
+            (10..=20_000).contains(&self.max_side_cells),
+            "planner.max_side_cells",
+            self.max_side_cells,
+            "10..=20000",
+        )
+    }
+}
+
+/// Why a plan could not be made.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PlanError {
+    #[error("the robot at ({0:.1}, {1:.1}) m is outside the planning grid")]
+    OutsideGrid(f64, f64),
+    #[error("no path to the goal: every way is blocked")]
+    NoPath,
+}
+
+pub struct WorldPlanner {
+    /// World coordinates of the centre of cell (0, 0).
+    origin_m: [f64; 2],
+    resolution_m: f64,
+    goal_m: [f64; 2],
+    dstar: DStarLite,
+}
+
+impl WorldPlanner {
+    /// A grid around `start_m` and `goal_m` (world ENU metres); if the pair is
+    /// too far apart for `max_side_cells`, the grid is centred between them
+    /// and the goal is clamped into it (the robot heads for its edge first).
+    pub fn new(start_m: [f64; 2], goal_m: [f64; 2], cfg: &WorldPlannerConfig) -> Self {
+        let r = cfg.resolution_m;
+        let lo = [
+            start_m[0].min(goal_m[0]) - cfg.margin_m,
+            start_m[1].min(goal_m[1]) - cfg.margin_m,
+        ];
+        let hi = [
+            start_m[0].max(goal_m[0]) + cfg.margin_m,
+            start_m[1].max(goal_m[1]) + cfg.margin_m,
+        ];
+        let side =
+            |a: f64, b: f64| (((b - a) / r).ceil() as usize + 1).clamp(2, cfg.max_side_cells);
+        let (w, h) = (side(lo[0], hi[0]), side(lo[1], hi[1]));
+        let mid = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
+        let origin_m = [
+            ((mid[0] - (w as f64 - 1.0) * r / 2.0) / r).round() * r,
+            ((mid[1] - (h as f64 - 1.0) * r / 2.0) / r).round() * r,
+        ];
+        let to_cell = |p: [f64; 2]| {
+            (
+                (((p[0] - origin_m[0]) / r).round().max(0.0) as usize).min(w - 1),
+                (((p[1] - origin_m[1]) / r).round().max(0.0) as usize).min(h - 1),
+            )
+        };
+        let grid = CostGrid::new(w, h, r, cfg.unknown_cost_s_per_m);
+        let dstar = DStarLite::new(
+            grid,
+            to_cell(start_m),
+            to_cell(goal_m),
+            cfg.min_cost_s_per_m,
+        );
+        Self {
+            origin_m,
+            resolution_m: r,
+            goal_m,
+            dstar,
+        }
+    }
+
+    pub fn goal_m(&self) -> [f64; 2] {
+        self.goal_m
+    }
+
+    fn cell(&self, p: [f64; 2]) -> Option<(usize, usize)> {
+        let g = self.dstar.grid();
+        let x = ((p[0] - self.origin_m[0]) / self.resolution_m).round();
+        let y = ((p[1] - self.origin_m[1]) / self.resolution_m).round();
+        (x >= 0.0 && y >= 0.0 && (x as usize) < g.width && (y as usize) < g.height)
+            .then_some((x as usize, y as usize))
+    }
+
+    fn world(&self, c: (usize, usize)) -> [f64; 2] {
+        [
+            self.origin_m[0] + c.0 as f64 * self.resolution_m,
+            self.origin_m[1] + c.1 as f64 * self.resolution_m,
+        ]
+    }
+
+    /// Copies a costmap message into the grid; returns how many cells changed.
+    /// NaN cells (never observed) are left as they are.
+    pub fn apply_costmap(&mut self, header: &CostmapHeader, cells: &[CostCell]) -> usize {
+        let mut changed = 0;
+        for (k, c) in cells.iter().enumerate().take(header.cell_count()) {
+            if c.cost_s_per_m.is_nan() {
+                continue;
+            }
+            if let Some((x, y)) = self.cell(header.cell_centre_m(k)) {
+                changed += self.dstar.set_cost(x, y, c.cost_s_per_m) as usize;
+            }
+        }
+        changed
+    }
+
+    /// Plans from the robot at `robot_m`: the world path (cell centres, the
+    /// goal itself at the end) and its cost in seconds.
+    pub fn plan(&mut self, robot_m: [f64; 2]) -> Result<(Vec<[f64; 2]>, f64), PlanError> {
+        let start = self
+            .cell(robot_m)
+            .ok_or(PlanError::OutsideGrid(robot_m[0], robot_m[1]))?;
+        self.dstar.move_start(start);
+        let cost = self.dstar.compute().ok_or(PlanError::NoPath)?;
+        let mut path: Vec<[f64; 2]> = self
+            .dstar
+            .path()
+            .into_iter()
+            .map(|c| self.world(c))
+            .collect();
+        if let Some(last) = path.last_mut() {
+            if self.cell(self.goal_m) == Some(self.dstar.goal()) {
+                *last = self.goal_m;
+            }
+        }
+        Ok((path, cost))
+    }
+
+    /// Expanded vertices so far (incremental repairs stay small).
+    pub fn expanded(&self) -> usize {
+        self.dstar.expanded
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use farsight_interfaces::msg::{CostmapLayer, Stamp};
+
+    #[test]
+    fn a_wall_in_a_costmap_message_bends_the_path() {
+        let cfg = WorldPlannerConfig {
+            margin_m: 10.0,
+            ..Default::default()
+        };
+        let mut p = WorldPlanner::new([0.0, 0.0], [20.0, 0.0], &cfg);
+        let (straight, _) = p.plan([0.0, 0.0]).unwrap();
+        assert!(straight.iter().all(|q| q[1].abs() < 1e-9));
+        // A lethal wall x = 10, y in -5..=5, as a 1 m costmap, north up.
+        let header = CostmapHeader {
+            stamp: Stamp::default(),
+            layer: CostmapLayer::FUSED,
+            width: 3,
+            height: 11,
+            resolution_m: 1.0,
+            x_min_m: 9.0,
+            y_max_m: 5.0,
+        };
+        let cells: Vec<CostCell> = (0..33)
+            .map(|k| CostCell {
+                cost_s_per_m: if k % 3 == 1 { f32::INFINITY } else { f32::NAN },
+                variance: 0.0,
+            })
+            .collect();
+        assert_eq!(p.apply_costmap(&header, &cells), 11);
+        let (around, cost) = p.plan([0.0, 0.0]).unwrap();
+        assert!(
+            around.iter().all(|q| q[0] != 10.0 || q[1].abs() > 5.0),
+            "{around:?}"
+        );
+        assert!(cost > 20.0);
+        assert_eq!(around.last(), Some(&[20.0, 0.0]));
+        assert_eq!(
+            p.plan([500.0, 0.0]),
+            Err(PlanError::OutsideGrid(500.0, 0.0))
+        );
+    }
+}
