@@ -333,4 +333,79 @@ mod graph {
             std::thread::sleep(Duration::from_millis(20));
         }
     }
+
+    #[test]
+    fn far_field_ensemble_outputs_become_far_field_cells_in_the_fused_map() {
+        use farsight_interfaces::camera::{Camera, CameraModel, Mount};
+        let ns = Namespace::new("fitamchain");
+        let bus = ns.bus("fitam-test");
+        let bins_cfg = ns.write(
+            "bin-projection.toml",
+            "method = \"fitam\"\ncameras = [\"front\"]\n",
+        );
+        let fusion_cfg = ns.write(
+            "costmap-fusion.toml",
+            "width_cells = 241\nheight_cells = 241\npublish_rate_hz = 5.0\nlocal_costmaps = []\n",
+        );
+        let fused = bus.slice_subscriber(&topics::costmap("fused")).unwrap();
+        let polar = bus.slice_subscriber(&topics::polar_bins()).unwrap();
+        let _bins = ns.start_stage("farsight-bin-projection", "bin-projection", &bins_cfg);
+        let fusion = ns.start_stage("farsight-costmap-fusion", "costmap-fusion", &fusion_cfg);
+        let pose = bus.publisher(&topics::pose()).unwrap();
+        let info = bus.publisher(&topics::camera_info("front")).unwrap();
+        let tensor = bus
+            .slice_publisher(&topics::far_field_logits("front"), 8 * 3 * 2 * 3)
+            .unwrap();
+        // A 90 degree camera facing ahead (the robot faces north), cut in 8
+        // slices of 11.25 degrees, one per heading bin it sees; every
+        // member of every radial bin says class 2 (4.25 m/s, 0.235 s/m).
+        let cam = Camera::new(
+            0,
+            "front",
+            CameraModel::pinhole(64, 32, 32.0, 32.0, 31.5, 15.5),
+            Mount::from_xyz_rpy_deg([0.0, 0.0, 1.0], [0.0; 3]),
+        );
+        let robot = Pose {
+            yaw_rad: std::f64::consts::FRAC_PI_2,
+            ..Default::default()
+        };
+        let logits: Vec<f32> = (0..8 * 3 * 2).flat_map(|_| [0.0, 0.0, 8.0]).collect();
+        let end = Instant::now() + Duration::from_secs(20);
+        let mut seq = 0;
+        loop {
+            seq += 1;
+            pose.publish(&robot).unwrap();
+            info.publish(&cam.to_info(Stamp::new(seq, 0))).unwrap();
+            tensor
+                .publish_copy(
+                    TensorHeader::new(Stamp::new(seq, 0), 0, &[8, 3, 2, 3]),
+                    &logits,
+                )
+                .unwrap();
+            std::thread::sleep(Duration::from_millis(50));
+            if let (Some(p), Some(f)) = (polar.latest().unwrap(), fused.latest().unwrap()) {
+                let h = *f.header();
+                let at = |x: f64, y: f64| {
+                    let j = ((x - h.x_min_m) / h.resolution_m as f64).round() as usize;
+                    let i = ((h.y_max_m - y) / h.resolution_m as f64).round() as usize;
+                    f.data()[i * h.width as usize + j]
+                };
+                let (ahead, behind) = (at(0.0, 60.0), at(0.0, -60.0));
+                if f.header().stamp.frame_seq > 0 && (ahead.cost_s_per_m - 1.0 / 4.25).abs() < 0.01
+                {
+                    assert_eq!(p.header().heading_bins, 32);
+                    assert_eq!(behind.cost_s_per_m, 1.0, "nobody looked behind: unknown");
+                    assert!(ahead.variance < 0.05, "{ahead:?}");
+                    let too_far = at(0.0, 110.0);
+                    assert_eq!(too_far.cost_s_per_m, 1.0, "beyond the last radial edge");
+                    break;
+                }
+            }
+            assert!(
+                Instant::now() < end,
+                "the far-field layer never showed the road ahead\n{}",
+                fusion.stderr_so_far()
+            );
+        }
+    }
 }

@@ -189,7 +189,10 @@ pub const NO_MEASUREMENT: PolarCell = PolarCell {
 
 /// The heading bin each of `slices` vertical image slices looks into: the
 /// bearing of the slice's centre column on the principal row, through the
-/// camera model and mount. Bins start at -pi, as the LRN bins.
+/// camera model and mount. Bins start at -pi, as the LRN bins. A model
+/// should cut the image into as many slices as heading bins its field of view
+/// spans (FITAM's slices are one heading bin wide): with fewer, the bins
+/// between slice centres stay unmeasured.
 pub fn slice_heading_bins(
     camera: &Camera,
     slices: usize,
@@ -254,6 +257,26 @@ pub fn polar_observation(
     Ok(out)
 }
 
+/// Several cameras' polar cells -> one set: per bin, the most certain
+/// (lowest variance) measurement.
+pub fn merge_cameras(per_camera: &[&[PolarCell]]) -> Vec<PolarCell> {
+    let n = per_camera.iter().map(|c| c.len()).max().unwrap_or(0);
+    (0..n)
+        .map(|k| {
+            per_camera
+                .iter()
+                .filter_map(|c| c.get(k))
+                .fold(NO_MEASUREMENT, |best, &c| {
+                    if c.variance < best.variance {
+                        c
+                    } else {
+                        best
+                    }
+                })
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -279,6 +302,22 @@ mod tests {
         let c = ensemble_observation(&l, 1, 2, 3, &e).unwrap()[0];
         let want = -(0.3f64 * 0.3f64.ln() + 0.5 * 0.5f64.ln() + 0.2 * 0.2f64.ln()) / 3f64.ln();
         assert!((c.variance as f64 - want).abs() < 1e-6, "{}", c.variance);
+    }
+
+    #[test]
+    fn cameras_merge_by_certainty() {
+        let cell = |cost, variance| PolarCell {
+            cost_s_per_m: cost,
+            variance,
+            class_id: 0,
+            probability: 1.0 - variance,
+        };
+        let front = [cell(2.0, 0.3), NO_MEASUREMENT];
+        let rear = [cell(0.5, 0.1), cell(0.4, 0.2)];
+        let m = merge_cameras(&[&front, &rear]);
+        assert_eq!((m[0].cost_s_per_m, m[1].cost_s_per_m), (0.5, 0.4));
+        let m = merge_cameras(&[&front]);
+        assert!(m[1].cost_s_per_m.is_nan());
     }
 
     #[test]

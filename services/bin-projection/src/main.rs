@@ -1,25 +1,37 @@
-//! `farsight-bin-projection`: LRN affordance heatmaps of every configured
-//! camera -> one set of angular bins around the robot, published on
-//! `bins/angular` each time a heatmap arrives.
+//! `farsight-bin-projection`: per-camera perception -> bins around the robot.
+//! With `method = "lrn"`, LRN affordance heatmaps of every configured camera
+//! become one set of angular bins on `bins/angular`; with `method = "fitam"`,
+//! FITAM far-field ensemble outputs become polar cost bins on `bins/polar`.
+//! Either is published each time an input arrives.
 //!
 //! Config (`bin-projection.toml`, defaults shown):
 //!
 //! ```toml
-//! cameras = ["front"]            # reads perception/<camera>/heatmap and camera/<camera>/info
+//! method = "lrn"                 # or "fitam"
+//! cameras = ["front"]            # reads perception/<camera>/heatmap (lrn) or
+//!                                # perception/<camera>/far_field (fitam), and camera/<camera>/info
 //! health_rate_hz = 1.0
 //! [bins]                         # see farsight_bin_projection::LrnBinsConfig (Spot preset)
 //! bin_width_deg = 5.0
 //! h_thresh = 0.7
 //! threshold_on = "pixels"        # or "bins"
 //! alpha = 0.1
+//! [fitam]                        # see farsight_bin_projection::fitam::FitamBinsConfig
+//! heading_bins = 32
+//! range_edges_m = [25.0, 50.0, 75.0, 100.0]
+//! class_speeds_mps = [0.5, 2.25, 4.25]
+//! variance = "max_probability"   # R = 1 - max p (reference code), or "entropy" (paper)
 //! ```
 
 use anyhow::Result;
+use farsight_bin_projection::fitam::{self, FitamBinsConfig};
 use farsight_bin_projection::{BinGeometry, CameraBins, LrnBins, LrnBinsConfig, Projection};
 use farsight_interfaces::camera::Camera;
 use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::fixed::FixedVec;
-use farsight_interfaces::msg::{AngularBins, HealthState, PixelEncoding, MAX_ANGULAR_BINS};
+use farsight_interfaces::msg::{
+    AngularBins, HealthState, PixelEncoding, PolarBinsHeader, PolarCell, Stamp, MAX_ANGULAR_BINS,
+};
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
 use farsight_stage::{load_config, ConfigError, Health, StageArgs, Validate};
@@ -32,23 +44,33 @@ const STAGE: &str = "bin-projection";
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 struct Config {
+    method: String,
     cameras: Vec<String>,
     health_rate_hz: f64,
     bins: LrnBinsConfig,
+    fitam: FitamBinsConfig,
 }
 
 impl Default for Config {
     fn default() -> Self {
         Self {
+            method: "lrn".into(),
             cameras: vec!["front".into()],
             health_rate_hz: 1.0,
             bins: LrnBinsConfig::default(),
+            fitam: FitamBinsConfig::default(),
         }
     }
 }
 
 impl Validate for Config {
     fn validate(&self) -> Result<(), ConfigError> {
+        ConfigError::check(
+            ["lrn", "fitam"].contains(&self.method.as_str()),
+            "method",
+            &self.method,
+            "\"lrn\" or \"fitam\"",
+        )?;
         ConfigError::check(
             !self.cameras.is_empty(),
             "cameras",
@@ -65,7 +87,8 @@ impl Validate for Config {
             self.health_rate_hz,
             "a positive rate in Hz",
         )?;
-        self.bins.validate()
+        self.bins.validate()?;
+        self.fitam.validate()
     }
 }
 
@@ -77,6 +100,9 @@ fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
     farsight_stage::init_tracing(args.log_format);
     let config: Config = load_config(args.config.as_deref())?;
+    if config.method == "fitam" {
+        return run_fitam(&config);
+    }
     let geometry = BinGeometry::from_width_deg(config.bins.bin_width_deg);
     let bus = Bus::open(STAGE)?;
     let heatmaps = config
@@ -199,6 +225,128 @@ fn run() -> Result<()> {
             .unwrap_or_default(),
         };
         match out.publish(&msg) {
+            Ok(()) => {
+                health.set(HealthState::OK, "");
+                health.output(h.stamp, clock.now_ns());
+            }
+            Err(e) => health.dropped(&e),
+        }
+        ControlFlow::Continue(())
+    })?;
+    health.stopping(clock.now_ns());
+    Ok(())
+}
+
+/// The FITAM loop: each camera's latest ensemble output becomes polar cells
+/// in the heading bins its slices look into; cameras merge by certainty.
+fn run_fitam(config: &Config) -> Result<()> {
+    let cfg = &config.fitam;
+    let bus = Bus::open(STAGE)?;
+    let tensors = config
+        .cameras
+        .iter()
+        .map(|c| bus.slice_subscriber(&topics::far_field_logits(c)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let infos = config
+        .cameras
+        .iter()
+        .map(|c| bus.subscriber(&topics::camera_info(c)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let radial = cfg.range_edges_m.len() - 1;
+    let out = bus.slice_publisher(&topics::polar_bins(), cfg.heading_bins * radial)?;
+    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
+    farsight_stage::announce_ready(STAGE);
+
+    let n = config.cameras.len();
+    let mut cameras: Vec<Option<Camera>> = vec![None; n];
+    // Per camera: its slice -> heading bin table (for a slice count) and its
+    // latest cells with their arrival time.
+    let mut slice_bins: Vec<Option<(usize, Vec<Option<usize>>)>> = vec![None; n];
+    let mut latest: Vec<Option<(u64, Vec<PolarCell>)>> = vec![None; n];
+    const CAMERA_TIMEOUT_NS: u64 = 1_000_000_000;
+    let header = PolarBinsHeader {
+        stamp: Stamp::default(),
+        heading_bins: cfg.heading_bins as u32,
+        first_heading_start_rad: -std::f32::consts::PI,
+        heading_width_rad: std::f32::consts::TAU / cfg.heading_bins as f32,
+        range_edges_m: FixedVec::from_slice(
+            &cfg.range_edges_m
+                .iter()
+                .map(|&e| e as f32)
+                .collect::<Vec<_>>(),
+        )
+        .unwrap_or_default(),
+    };
+    let clock = WallClock;
+    let listeners: Vec<_> = tensors.iter().map(|t| t.listener()).collect();
+    ipc::wait_loop(&listeners, Some(Duration::from_millis(200)), |wake| {
+        let now = clock.now_ns();
+        for (i, info) in infos.iter().enumerate() {
+            if let Ok(Some(m)) = info.latest() {
+                match Camera::from_info(&m) {
+                    Ok(c) => {
+                        if cameras[i].as_ref() != Some(&c) {
+                            slice_bins[i] = None;
+                        }
+                        cameras[i] = Some(c);
+                    }
+                    Err(e) => {
+                        health.dropped(&format_args!("camera info {}: {e}", config.cameras[i]))
+                    }
+                }
+            }
+        }
+        health.tick(now);
+        let Wake::Input(i) = wake else {
+            return ControlFlow::Continue(());
+        };
+        let Ok(Some(s)) = tensors[i].latest() else {
+            return ControlFlow::Continue(());
+        };
+        health.input();
+        let h = *s.header();
+        let shape = h.shape();
+        if shape.len() != 4 || h.element_count() != s.data().len() {
+            health.dropped(&format_args!(
+                "far-field tensor of shape {shape:?} with {} values; want [slices, radial, members, classes]",
+                s.data().len()
+            ));
+            return ControlFlow::Continue(());
+        }
+        let shape = [0, 1, 2, 3].map(|k| shape[k] as usize);
+        let Some(cam) = &cameras[i] else {
+            health.dropped(&format_args!(
+                "no camera model yet for {}",
+                config.cameras[i]
+            ));
+            return ControlFlow::Continue(());
+        };
+        if slice_bins[i].as_ref().is_none_or(|(k, _)| *k != shape[0]) {
+            slice_bins[i] = Some((
+                shape[0],
+                fitam::slice_heading_bins(cam, shape[0], cfg.heading_bins),
+            ));
+        }
+        let bins = &slice_bins[i].as_ref().expect("just built").1;
+        match fitam::polar_observation(s.data(), shape, bins, cfg) {
+            Ok(cells) => latest[i] = Some((now, cells)),
+            Err(e) => {
+                health.dropped(&format_args!("{}: {e}", config.cameras[i]));
+                return ControlFlow::Continue(());
+            }
+        }
+        let fresh: Vec<&[PolarCell]> = latest
+            .iter()
+            .flatten()
+            .filter(|(t, _)| now.saturating_sub(*t) <= CAMERA_TIMEOUT_NS)
+            .map(|(_, c)| c.as_slice())
+            .collect();
+        let merged = fitam::merge_cameras(&fresh);
+        // (Functional update syntax here trips a rustc 1.95 MIR bug with the
+        // const-generic FixedVec inside the header.)
+        let mut stamped = header;
+        stamped.stamp = h.stamp;
+        match out.publish_copy(stamped, &merged) {
             Ok(()) => {
                 health.set(HealthState::OK, "");
                 health.output(h.stamp, clock.now_ns());
