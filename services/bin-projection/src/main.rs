@@ -131,20 +131,8 @@ fn run() -> Result<()> {
     let listeners: Vec<_> = heatmaps.iter().map(|h| h.listener()).collect();
     ipc::wait_loop(&listeners, Some(Duration::from_millis(200)), |wake| {
         let now = clock.now_ns();
-        for (i, info) in infos.iter().enumerate() {
-            if let Ok(Some(m)) = info.latest() {
-                match Camera::from_info(&m) {
-                    Ok(c) => {
-                        if cameras[i].as_ref() != Some(&c) {
-                            maps[i] = None;
-                        }
-                        cameras[i] = Some(c);
-                    }
-                    Err(e) => {
-                        health.dropped(&format_args!("camera info {}: {e}", config.cameras[i]))
-                    }
-                }
-            }
+        for i in refresh_cameras(&infos, &mut cameras, &config.cameras, &mut health) {
+            maps[i] = None;
         }
         health.tick(now);
         let Wake::Input(i) = wake else {
@@ -281,20 +269,8 @@ fn run_fitam(config: &Config) -> Result<()> {
     let listeners: Vec<_> = tensors.iter().map(|t| t.listener()).collect();
     ipc::wait_loop(&listeners, Some(Duration::from_millis(200)), |wake| {
         let now = clock.now_ns();
-        for (i, info) in infos.iter().enumerate() {
-            if let Ok(Some(m)) = info.latest() {
-                match Camera::from_info(&m) {
-                    Ok(c) => {
-                        if cameras[i].as_ref() != Some(&c) {
-                            slice_bins[i] = None;
-                        }
-                        cameras[i] = Some(c);
-                    }
-                    Err(e) => {
-                        health.dropped(&format_args!("camera info {}: {e}", config.cameras[i]))
-                    }
-                }
-            }
+        for i in refresh_cameras(&infos, &mut cameras, &config.cameras, &mut health) {
+            slice_bins[i] = None;
         }
         health.tick(now);
         let Wake::Input(i) = wake else {
@@ -357,4 +333,30 @@ fn run_fitam(config: &Config) -> Result<()> {
     })?;
     health.stopping(clock.now_ns());
     Ok(())
+}
+
+/// Takes each camera's newest model; returns the cameras whose model changed
+/// (their per-camera tables must be rebuilt). A bad camera info is dropped
+/// and counted; the previous model stays.
+fn refresh_cameras(
+    infos: &[ipc::Subscriber<farsight_interfaces::msg::CameraInfo>],
+    cameras: &mut [Option<Camera>],
+    names: &[String],
+    health: &mut Health,
+) -> Vec<usize> {
+    let mut changed = Vec::new();
+    for (i, info) in infos.iter().enumerate() {
+        if let Ok(Some(m)) = info.latest() {
+            match Camera::from_info(&m) {
+                Ok(c) => {
+                    if cameras[i].as_ref() != Some(&c) {
+                        changed.push(i);
+                    }
+                    cameras[i] = Some(c);
+                }
+                Err(e) => health.dropped(&format_args!("camera info {}: {e}", names[i])),
+            }
+        }
+    }
+    changed
 }
