@@ -205,6 +205,32 @@ mod graph {
     use farsight_tests::Namespace;
     use std::time::{Duration, Instant};
 
+    /// A near-field costmap of (2 half + 1) m square around the origin: free
+    /// ground at 0.5 s/m, lethal where `lethal(x, y)` (whole metres).
+    fn near_field(half: i64, lethal: impl Fn(i64, i64) -> bool) -> (CostmapHeader, Vec<CostCell>) {
+        let side = 2 * half + 1;
+        let header = CostmapHeader {
+            stamp: Stamp::new(1, 0),
+            layer: CostmapLayer::LOCAL,
+            width: side as u32,
+            height: side as u32,
+            resolution_m: 1.0,
+            x_min_m: -half as f64,
+            y_max_m: half as f64,
+        };
+        let cells = (0..side * side)
+            .map(|k| CostCell {
+                cost_s_per_m: if lethal(-half + k % side, half - k / side) {
+                    f32::INFINITY
+                } else {
+                    0.5
+                },
+                variance: 0.0,
+            })
+            .collect();
+        (header, cells)
+    }
+
     #[test]
     fn a_wall_seen_by_near_field_sensing_is_planned_around_and_driven() {
         let ns = Namespace::new("planning");
@@ -240,25 +266,7 @@ mod graph {
 
         // Near-field map 21x21 m around the robot at the origin: free ground
         // (0.5 s/m) with a lethal wall at x = 8 m, y in -6..=6 m.
-        let header = CostmapHeader {
-            stamp: Stamp::new(1, 0),
-            layer: CostmapLayer::LOCAL,
-            width: 21,
-            height: 21,
-            resolution_m: 1.0,
-            x_min_m: -10.0,
-            y_max_m: 10.0,
-        };
-        let cells: Vec<CostCell> = (0..21 * 21)
-            .map(|k| {
-                let (x, y) = (-10 + (k % 21) as i64, 10 - (k / 21) as i64);
-                let wall = x == 8 && y.abs() <= 6;
-                CostCell {
-                    cost_s_per_m: if wall { f32::INFINITY } else { 0.5 },
-                    variance: 0.0,
-                }
-            })
-            .collect();
+        let (header, cells) = near_field(10, |x, y| x == 8 && y.abs() <= 6);
         let end = Instant::now() + Duration::from_secs(20);
         let mut around = None;
         while Instant::now() < end && around.is_none() {
@@ -405,6 +413,113 @@ mod graph {
                 Instant::now() < end,
                 "the far-field layer never showed the road ahead\n{}",
                 fusion.stderr_so_far()
+            );
+        }
+    }
+
+    #[test]
+    fn hip_builds_its_library_from_poses_and_steers_off_a_lethal_trajectory() {
+        let ns = Namespace::new("hipgraph");
+        let bus = ns.bus("hip-test");
+        // Recorded driving at 2 m/s, 10 Hz: straight, hard left, hard right
+        // in turn, 6 s each, twice over.
+        let (mut x, mut y, mut yaw) = (0.0f64, 0.0f64, 0.0f64);
+        let mut csv = String::from("t_s,x_m,y_m,yaw_rad\n");
+        for k in 0..360 {
+            let t = k as f64 * 0.1;
+            csv += &format!("{t},{x},{y},{yaw}\n");
+            let w = [0.0, 1.0, -1.0][(k / 60) % 3];
+            x += 0.2 * yaw.cos();
+            y += 0.2 * yaw.sin();
+            yaw += 0.1 * w;
+        }
+        let poses = ns.write("poses.csv", &csv);
+        let library = poses.with_file_name("hip-library.toml");
+        let out = std::process::Command::new(farsight_tests::bin("farsight"))
+            .args([
+                "hip-library",
+                poses.to_str().unwrap(),
+                "--k",
+                "3",
+                "--out",
+                library.to_str().unwrap(),
+            ])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(String::from_utf8_lossy(&out.stdout).contains("wrote 3 trajectories"));
+
+        let fusion_cfg = ns.write(
+            "costmap-fusion.toml",
+            "width_cells = 41\nheight_cells = 41\npublish_rate_hz = 10.0\n",
+        );
+        let planner_cfg = ns.write(
+            "subgoal-selection.toml",
+            "method = \"hip\"\nhip_library = \"hip-library.toml\"\nreplan_rate_hz = 10.0\n",
+        );
+        let planned = bus.subscriber(&topics::path("planned")).unwrap();
+        let subgoals = bus.subscriber(&topics::subgoal()).unwrap();
+        let pose = bus.publisher(&topics::pose()).unwrap();
+        let goal = bus.publisher(&topics::goal()).unwrap();
+        let local = bus
+            .slice_publisher(&topics::costmap("local"), 11 * 11)
+            .unwrap();
+        let _fusion = ns.start_stage("farsight-costmap-fusion", "costmap-fusion", &fusion_cfg);
+        let planner = ns.start_stage(
+            "farsight-subgoal-selection",
+            "subgoal-selection",
+            &planner_cfg,
+        );
+        // Free ground, optionally with a rock 3 m ahead across |y| <= 1.
+        let ground = |rock: bool| near_field(5, |x, y| rock && x == 3 && y.abs() <= 1);
+        let wait_path = |rock: bool, want: &dyn Fn(&[[f32; 2]]) -> bool| {
+            let end = Instant::now() + Duration::from_secs(15);
+            while Instant::now() < end {
+                pose.publish(&Pose::default()).unwrap();
+                goal.publish(&NavGoal {
+                    kind: GoalKind::LOCAL,
+                    x_m: 20.0,
+                    tolerance_m: 1.0,
+                    ..Default::default()
+                })
+                .unwrap();
+                let (header, cells) = ground(rock);
+                local.publish_copy(header, &cells).unwrap();
+                if let Some(p) = planned.latest().unwrap() {
+                    if want(p.points.as_slice()) {
+                        return p;
+                    }
+                }
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            panic!(
+                "HIP never chose the expected trajectory (rock {rock}); last {:?}\n{}",
+                planned
+                    .latest()
+                    .unwrap()
+                    .map(|p| p.points.as_slice().to_vec()),
+                planner.stderr_so_far()
+            );
+        };
+        // Open ground: the straight trajectory ends in the goal region.
+        let straight = wait_path(false, &|pts| {
+            pts.len() == 11 && pts.iter().all(|q| q[1].abs() < 0.3)
+        });
+        assert!(straight.points.as_slice().last().unwrap()[0] > 3.0);
+        assert_eq!(
+            subgoals.latest().unwrap().unwrap().source,
+            SubgoalSource::HIP
+        );
+        // The rock makes straight lethal: an arc that never enters it.
+        let arc = wait_path(true, &|pts| pts.iter().any(|q| q[1].abs() > 1.0));
+        for q in arc.points.as_slice() {
+            assert!(
+                !((q[0] - 3.0).abs() <= 0.5 && q[1].abs() <= 1.5),
+                "through the rock: {q:?}"
             );
         }
     }

@@ -5,45 +5,8 @@
 //! `(1 - phi) C_learned + phi C_costmap` (phi = 0.75).
 //!
 //! Lethal cells (infinite cost) stay lethal and are left out of the softmax;
-//! NaN cells (unknown) also stay NaN.
-
-use farsight_stage::{ConfigError, Validate};
-use serde::{Deserialize, Serialize};
-
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct HipConfig {
-    /// Weight of the geometric term.
-    pub phi: f64,
-    /// Scale of the softmax-rescaled costmap (eta / H).
-    pub alpha: f64,
-}
-
-impl Default for HipConfig {
-    fn default() -> Self {
-        Self {
-            phi: 0.75,
-            alpha: 6.4,
-        }
-    }
-}
-
-impl Validate for HipConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        ConfigError::check(
-            (0.0..=1.0).contains(&self.phi),
-            "hip.phi",
-            self.phi,
-            "0..=1",
-        )?;
-        ConfigError::check(
-            self.alpha > 0.0 && self.alpha.is_finite(),
-            "hip.alpha",
-            self.alpha,
-            "a positive scale",
-        )
-    }
-}
+//! NaN cells (unknown) also stay NaN. The planner that uses these (and its
+//! phi, alpha) is `farsight_subgoal_selection::hip`.
 
 /// The paper's rescaling of a geometric costmap (a softmax over the finite
 /// cells, times alpha).

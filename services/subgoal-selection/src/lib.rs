@@ -6,11 +6,14 @@
 //!   image, peripheral optic goal, Pareto-optimal horizon optic goal, the visual
 //!   path of Algorithm 1 and the proximity/alignment servo features.
 //! - [`lrn_head`]: LRN's goal-conditioned heading choice over angular bins.
-//! - [`dstar_lite`]: D* Lite (and A*) on the fused FITAM costmap.
+//! - [`dstar_lite`]: D* Lite (and A*) on the fused FITAM costmap, and
+//!   [`planner`], its world-fixed grid for the stage.
+//! - [`hip`]: HIP's trajectory library scored by eq. (1).
 //!
 //! Plain functions over plain data; the stage binary wires them to the bus.
 
 pub mod dstar_lite;
+pub mod hip;
 pub mod lrn_head;
 pub mod planner;
 pub mod povnav;

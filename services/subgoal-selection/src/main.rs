@@ -6,6 +6,7 @@
 //! stage goes stale and the robot stays put.
 
 use anyhow::Result;
+use farsight_costmap_fusion::hip::hip_scaled_costmap;
 use farsight_interfaces::camera::Camera;
 use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::fixed::FixedVec;
@@ -14,6 +15,7 @@ use farsight_interfaces::msg::*;
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
 use farsight_stage::{load_config, Health, StageArgs};
+use farsight_subgoal_selection::hip::{choose, LibraryFile, Trajectory};
 use farsight_subgoal_selection::lrn_head::LrnHead;
 use farsight_subgoal_selection::planner::WorldPlanner;
 use farsight_subgoal_selection::povnav::{plan, safe_half_widths, Mode};
@@ -44,8 +46,10 @@ fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
     farsight_stage::init_tracing(args.log_format);
     let config: SubgoalStageConfig = load_config(args.config.as_deref())?;
-    if config.method == "dstar_lite" {
-        return run_dstar_lite(&config);
+    if ["dstar_lite", "hip"].contains(&config.method.as_str()) {
+        // A relative library path is relative to the config file, like a model's.
+        let base = args.config.as_deref().and_then(std::path::Path::parent);
+        return run_map_planner(&config, base.unwrap_or(std::path::Path::new(".")));
     }
     let mut tracker =
         GoalTracker::anchored_at(config.anchor_latitude_deg, config.anchor_longitude_deg)?;
@@ -261,10 +265,43 @@ fn run() -> Result<()> {
     Ok(())
 }
 
-/// The D* Lite loop: keep a world-fixed planner for the current goal, feed it
-/// each fused costmap, replan from the robot's cell, publish the path and a
-/// subgoal `subgoal_distance_m` along it.
-fn run_dstar_lite(config: &SubgoalStageConfig) -> Result<()> {
+/// What plans on the costmap: D* Lite (a world-fixed grid per goal) or HIP
+/// (the trajectory library over the latest HIP-scaled costmap).
+enum MapPlanner {
+    DStarLite(Option<WorldPlanner>),
+    Hip {
+        library: Vec<Trajectory>,
+        /// The latest costmap's header and its HIP-scaled cells.
+        costmap: Option<(CostmapHeader, Vec<f32>)>,
+    },
+}
+
+impl MapPlanner {
+    fn source(&self) -> SubgoalSource {
+        match self {
+            MapPlanner::DStarLite(_) => SubgoalSource::DSTAR_LITE,
+            MapPlanner::Hip { .. } => SubgoalSource::HIP,
+        }
+    }
+}
+
+/// The costmap planners' loop: feed each costmap to the planner, replan from
+/// the robot at most `replan_rate_hz` (and on every change for D* Lite),
+/// publish the world path on `nav/path/planned` and a subgoal
+/// `subgoal_distance_m` along it.
+fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> Result<()> {
+    let mut planner = match config.method.as_str() {
+        "hip" => {
+            let file: LibraryFile =
+                farsight_stage::load_config_file(&base_dir.join(&config.hip_library))?;
+            tracing::info!(trajectories = file.trajectories.len(), "HIP library loaded");
+            MapPlanner::Hip {
+                library: file.trajectories.into_iter().map(Trajectory).collect(),
+                costmap: None,
+            }
+        }
+        _ => MapPlanner::DStarLite(None),
+    };
     let mut tracker =
         GoalTracker::anchored_at(config.anchor_latitude_deg, config.anchor_longitude_deg)?;
     let bus = Bus::open(STAGE)?;
@@ -277,7 +314,6 @@ fn run_dstar_lite(config: &SubgoalStageConfig) -> Result<()> {
     farsight_stage::announce_ready(STAGE);
 
     let clock = WallClock;
-    let mut planner: Option<WorldPlanner> = None;
     let mut pose: Option<Pose> = None;
     let mut stamp = Stamp::default();
     let mut dirty = true;
@@ -304,21 +340,22 @@ fn run_dstar_lite(config: &SubgoalStageConfig) -> Result<()> {
                 return ControlFlow::Continue(());
             };
             let robot = [p.position_m[0], p.position_m[1]];
-            let goal = p.to_world_frame([distance * bearing.cos(), distance * bearing.sin()]);
-            let res = config.planner.resolution_m;
-            if planner.as_ref().is_none_or(|pl| {
-                let g = pl.goal_m();
-                (g[0] - goal[0]).hypot(g[1] - goal[1]) > res
-            }) {
-                tracing::info!(
-                    goal_x_m = goal[0],
-                    goal_y_m = goal[1],
-                    "new goal: planning grid built"
-                );
-                planner = Some(WorldPlanner::new(robot, goal, &config.planner));
-                dirty = true;
+            let goal_robot = [distance * bearing.cos(), distance * bearing.sin()];
+            let goal = p.to_world_frame(goal_robot);
+            if let MapPlanner::DStarLite(pl) = &mut planner {
+                if pl.as_ref().is_none_or(|pl| {
+                    let g = pl.goal_m();
+                    (g[0] - goal[0]).hypot(g[1] - goal[1]) > config.planner.resolution_m
+                }) {
+                    tracing::info!(
+                        goal_x_m = goal[0],
+                        goal_y_m = goal[1],
+                        "new goal: planning grid built"
+                    );
+                    *pl = Some(WorldPlanner::new(robot, goal, &config.planner));
+                    dirty = true;
+                }
             }
-            let pl = planner.as_mut().expect("just built");
             match costmaps.latest() {
                 Ok(Some(c)) => {
                     health.input();
@@ -331,8 +368,18 @@ fn run_dstar_lite(config: &SubgoalStageConfig) -> Result<()> {
                             c.data().len()
                         ));
                     } else {
-                        dirty |= pl.apply_costmap(&h, c.data()) > 0;
                         stamp = h.stamp;
+                        match &mut planner {
+                            MapPlanner::DStarLite(pl) => {
+                                let pl = pl.as_mut().expect("built above");
+                                dirty |= pl.apply_costmap(&h, c.data()) > 0;
+                            }
+                            MapPlanner::Hip { costmap, .. } => {
+                                let costs: Vec<f32> =
+                                    c.data().iter().map(|c| c.cost_s_per_m).collect();
+                                *costmap = Some((h, hip_scaled_costmap(&costs, config.hip.alpha)));
+                            }
+                        }
                     }
                 }
                 Ok(None) => {}
@@ -343,19 +390,69 @@ fn run_dstar_lite(config: &SubgoalStageConfig) -> Result<()> {
             }
             dirty = false;
             next_plan = now + period_ns;
-            let (path, cost_s) = match pl.plan(robot) {
-                Ok(r) => r,
-                Err(e) => {
-                    health.set(HealthState::DEGRADED, &e.to_string());
-                    return ControlFlow::Continue(());
+            let source = planner.source();
+            let path: Vec<[f64; 2]> = match &mut planner {
+                MapPlanner::DStarLite(pl) => {
+                    let pl = pl.as_mut().expect("built above");
+                    match pl.plan(robot) {
+                        Ok((path, cost_s)) => {
+                            tracing::debug!(
+                                cost_s,
+                                cells = path.len(),
+                                expanded = pl.expanded(),
+                                "planned"
+                            );
+                            path
+                        }
+                        Err(e) => {
+                            health.set(HealthState::DEGRADED, &e.to_string());
+                            return ControlFlow::Continue(());
+                        }
+                    }
+                }
+                MapPlanner::Hip { library, costmap } => {
+                    let Some((h, scaled)) = costmap else {
+                        health.set(
+                            HealthState::DEGRADED,
+                            "no costmap yet: HIP has nothing to score",
+                        );
+                        return ControlFlow::Continue(());
+                    };
+                    let res = h.resolution_m as f64;
+                    // Off the map is unknown: the scaled value of the unknown cost
+                    // would need the map's softmax sum, so count it as free (0)
+                    // rather than invent one; the directive still pulls to the goal.
+                    let at = |q: [f64; 2]| {
+                        let w = p.to_world_frame(q);
+                        let j = ((w[0] - h.x_min_m) / res).round();
+                        let i = ((h.y_max_m - w[1]) / res).round();
+                        if j < 0.0 || i < 0.0 || j >= h.width as f64 || i >= h.height as f64 {
+                            return 0.0;
+                        }
+                        let v = scaled[i as usize * h.width as usize + j as usize];
+                        if v.is_nan() {
+                            0.0
+                        } else {
+                            v as f64
+                        }
+                    };
+                    match choose(library, goal_robot, at, None, &config.hip) {
+                        Some(c) => {
+                            tracing::debug!(?c, "HIP choice");
+                            std::iter::once(robot)
+                                .chain(library[c.index].0.iter().map(|&q| p.to_world_frame(q)))
+                                .collect()
+                        }
+                        None => {
+                            health.set(
+                                HealthState::DEGRADED,
+                                "every HIP trajectory crosses a lethal cell",
+                            );
+                            return ControlFlow::Continue(());
+                        }
+                    }
                 }
             };
-            tracing::debug!(
-                cost_s,
-                cells = path.len(),
-                expanded = pl.expanded(),
-                "planned"
-            );
             let points: Vec<[f32; 2]> = path
                 .iter()
                 .take(MAX_PATH_POINTS)
@@ -376,7 +473,7 @@ fn run_dstar_lite(config: &SubgoalStageConfig) -> Result<()> {
                 .unwrap_or([0.0, 0.0]);
             let subgoal = Subgoal {
                 stamp,
-                source: SubgoalSource::DSTAR_LITE,
+                source,
                 mode: ServoMode::SAFE,
                 heading_rad: target[1].atan2(target[0]) as f32,
                 x_m: target[0] as f32,

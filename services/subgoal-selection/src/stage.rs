@@ -1,14 +1,15 @@
 //! The subgoal-selection stage's config (`subgoal-selection.toml`, defaults shown):
 //!
 //! ```toml
-//! method = "povnav"              # "povnav", "lrn", "goal_heuristic" or "dstar_lite"
+//! method = "povnav"              # "povnav", "lrn", "goal_heuristic", "dstar_lite" or "hip"
 //! camera = "front"               # povnav: reads perception/<camera>/navigability
 //! robot_width_m = 0.8            # povnav: footprint for the safe visual path
 //! safety_margin_m = 0.2
 //! subgoal_distance_m = 25.0      # lrn: the heading becomes a subgoal this far out;
 //!                                # dstar_lite: the subgoal is this far along the path
-//! costmap = "fused"              # dstar_lite: plans on costmap/<costmap>
-//! replan_rate_hz = 2.0           # dstar_lite: at most this often (and on each costmap)
+//! costmap = "fused"              # dstar_lite, hip: plans on costmap/<costmap>
+//! replan_rate_hz = 2.0           # dstar_lite, hip: at most this often (D* Lite also on each change)
+//! hip_library = ""               # hip: the trajectory library (`farsight hip-library` writes one)
 //! path_max_range_m = 50.0        # povnav: robot-frame path points further out are dropped
 //!                                # (near the horizon line, ground projection is ill-conditioned)
 //! health_rate_hz = 1.0
@@ -17,8 +18,10 @@
 //! [povnav]                       # see farsight_subgoal_selection::povnav::PovnavConfig
 //! [lrn]                          # see farsight_subgoal_selection::lrn_head::LrnHeadConfig (Spot preset)
 //! [planner]                      # see farsight_subgoal_selection::planner::WorldPlannerConfig
+//! [hip]                          # see farsight_subgoal_selection::hip::HipPlannerConfig
 //! ```
 
+use crate::hip::HipPlannerConfig;
 use crate::lrn_head::LrnHeadConfig;
 use crate::planner::WorldPlannerConfig;
 use crate::povnav::PovnavConfig;
@@ -36,12 +39,14 @@ pub struct SubgoalStageConfig {
     pub path_max_range_m: f64,
     pub costmap: String,
     pub replan_rate_hz: f64,
+    pub hip_library: std::path::PathBuf,
     pub health_rate_hz: f64,
     pub anchor_latitude_deg: Option<f64>,
     pub anchor_longitude_deg: Option<f64>,
     pub povnav: PovnavConfig,
     pub lrn: LrnHeadConfig,
     pub planner: WorldPlannerConfig,
+    pub hip: HipPlannerConfig,
 }
 
 impl Default for SubgoalStageConfig {
@@ -55,12 +60,14 @@ impl Default for SubgoalStageConfig {
             path_max_range_m: 50.0,
             costmap: "fused".into(),
             replan_rate_hz: 2.0,
+            hip_library: Default::default(),
             health_rate_hz: 1.0,
             anchor_latitude_deg: None,
             anchor_longitude_deg: None,
             povnav: PovnavConfig::default(),
             lrn: LrnHeadConfig::default(),
             planner: WorldPlannerConfig::default(),
+            hip: HipPlannerConfig::default(),
         }
     }
 }
@@ -68,10 +75,17 @@ impl Default for SubgoalStageConfig {
 impl Validate for SubgoalStageConfig {
     fn validate(&self) -> Result<(), ConfigError> {
         ConfigError::check(
-            ["povnav", "lrn", "goal_heuristic", "dstar_lite"].contains(&self.method.as_str()),
+            ["povnav", "lrn", "goal_heuristic", "dstar_lite", "hip"]
+                .contains(&self.method.as_str()),
             "method",
             &self.method,
-            "\"povnav\", \"lrn\", \"goal_heuristic\" or \"dstar_lite\"",
+            "\"povnav\", \"lrn\", \"goal_heuristic\", \"dstar_lite\" or \"hip\"",
+        )?;
+        ConfigError::check(
+            self.method != "hip" || !self.hip_library.as_os_str().is_empty(),
+            "hip_library",
+            "\"\"",
+            "a trajectory library file when method = \"hip\"",
         )?;
         farsight_interfaces::topics::validate_name(&self.costmap)
             .map_err(|e| ConfigError::invalid("costmap", &self.costmap, e.why))?;
@@ -116,6 +130,7 @@ impl Validate for SubgoalStageConfig {
         farsight_stage::check_anchor(self.anchor_latitude_deg, self.anchor_longitude_deg)?;
         self.povnav.validate()?;
         self.lrn.validate()?;
-        self.planner.validate()
+        self.planner.validate()?;
+        self.hip.validate()
     }
 }

@@ -6,12 +6,14 @@
 //! farsight bench transport                                           # iceoryx2 vs zenoh vs Unix socket
 //! farsight demo                                                      # the graph on real frames
 //! farsight infer --model-config deploy/models/twinlitenet.toml IMAGES --out out/infer
+//! farsight hip-library poses.csv --k 200 --out hip-library.toml      # HIP trajectory library
 //! ```
 
 mod bench;
 mod bench_inference;
 mod bench_navigation;
 mod demo;
+mod hip_library;
 mod infer;
 mod probe;
 
@@ -40,6 +42,8 @@ enum Command {
     Demo(demo::DemoArgs),
     /// Run a model on image files offline, as the inference stage would, and write PNGs.
     Infer(infer::InferArgs),
+    /// Build HIP's trajectory library (k-means of recorded futures) from poses.
+    HipLibrary(hip_library::HipLibraryArgs),
 }
 
 fn main() {
@@ -50,6 +54,7 @@ fn main() {
         Command::Bench(c) => bench::run(c),
         Command::Demo(a) => demo::run(a),
         Command::Infer(a) => infer::run(a),
+        Command::HipLibrary(a) => hip_library::run(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

@@ -1,0 +1,413 @@
+//! HIP's trajectory-library planner (sections II-III): K candidate futures
+//! of the robot (k-means centroids of recorded trajectories, H positions
+//! each, robot frame), each scored by eq. (1):
+//!
+//! `L(tau) = C_directive(tau) + (1 - phi) C_learned(tau) + phi sum_i C_costmap(tau_i)`
+//!
+//! - `C_directive = delta` unless the trajectory ends inside the goal region:
+//!   a rectangle 2 m wide whose centre axis points at the goal, starting 3 m
+//!   toward it (the paper's region goal);
+//! - `C_learned = -log q(tau | o)` from a learned density model when one is
+//!   configured (0 otherwise, which leaves the hybrid with its geometric and
+//!   directive terms);
+//! - `C_costmap` is the fused costmap rescaled as the paper
+//!   (`farsight_costmap_fusion::hip::hip_scaled_costmap`); a trajectory
+//!   through a lethal cell is never chosen.
+//!
+//! The planner picks the argmin. [`kmeans`] and [`future_trajectories`] build
+//! the library from recorded poses (`farsight hip-library`).
+//!
+//! ```
+//! use farsight_subgoal_selection::hip::{choose, HipPlannerConfig, Trajectory};
+//!
+//! let straight = Trajectory((1..=10).map(|i| [0.5 * i as f64, 0.0]).collect());
+//! let left = Trajectory((1..=10).map(|i| [0.4 * i as f64, 0.2 * i as f64]).collect());
+//! let cfg = HipPlannerConfig::default();
+//! // Goal 20 m ahead, flat cost everywhere, no learned model: straight ahead wins.
+//! let pick = choose(&[straight, left], [20.0, 0.0], |_| 0.01, None, &cfg).unwrap();
+//! assert_eq!(pick.index, 0);
+//! ```
+
+use farsight_costmap_fusion::hip::hip_combined;
+use farsight_stage::{ConfigError, Validate};
+use serde::{Deserialize, Serialize};
+
+/// H future positions in the robot frame (x ahead, y left), metres.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Trajectory(pub Vec<[f64; 2]>);
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HipPlannerConfig {
+    /// Weight of the geometric term (the paper's phi* = 0.75).
+    pub phi: f64,
+    /// Scale of the softmax-rescaled costmap: eta / H = 64 / 10.
+    pub alpha: f64,
+    /// Directive penalty for missing the goal region.
+    pub delta: f64,
+    /// The goal region: how far toward the goal it starts, and its width.
+    pub region_offset_m: f64,
+    pub region_width_m: f64,
+}
+
+impl Default for HipPlannerConfig {
+    fn default() -> Self {
+        Self {
+            phi: 0.75,
+            alpha: 6.4,
+            delta: 100.0,
+            region_offset_m: 3.0,
+            region_width_m: 2.0,
+        }
+    }
+}
+
+impl Validate for HipPlannerConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        ConfigError::check(
+            (0.0..=1.0).contains(&self.phi),
+            "hip.phi",
+            self.phi,
+            "0..=1",
+        )?;
+        for (k, v) in [
+            ("hip.alpha", self.alpha),
+            ("hip.delta", self.delta),
+            ("hip.region_offset_m", self.region_offset_m),
+            ("hip.region_width_m", self.region_width_m),
+        ] {
+            ConfigError::check(v >= 0.0 && v.is_finite(), k, v, "a non-negative number")?;
+        }
+        Ok(())
+    }
+}
+
+/// The directive cost of a trajectory ending at `end` for a goal at `goal`
+/// (both robot frame): 0 inside the region, `delta` outside. A goal closer
+/// than the offset moves the region's start to the goal.
+pub fn directive_cost(end: [f64; 2], goal: [f64; 2], cfg: &HipPlannerConfig) -> f64 {
+    let d = goal[0].hypot(goal[1]);
+    if d < 1e-9 {
+        return 0.0;
+    }
+    let (ux, uy) = (goal[0] / d, goal[1] / d);
+    let along = end[0] * ux + end[1] * uy;
+    let across = -end[0] * uy + end[1] * ux;
+    let inside =
+        along >= cfg.region_offset_m.min(d) - 1e-9 && across.abs() <= cfg.region_width_m / 2.0;
+    if inside {
+        0.0
+    } else {
+        cfg.delta
+    }
+}
+
+/// The chosen trajectory and its cost terms.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Choice {
+    pub index: usize,
+    pub total: f64,
+    pub directive: f64,
+    pub learned: f64,
+    pub geometric: f64,
+}
+
+/// Scores every trajectory by eq. (1) and returns the argmin. `costmap_at`
+/// gives the (HIP-scaled) costmap value at a robot-frame point; `learned`
+/// holds -log q per trajectory when a model is configured. `None` when every
+/// trajectory crosses a lethal cell (or the library is empty).
+pub fn choose(
+    library: &[Trajectory],
+    goal_robot_m: [f64; 2],
+    costmap_at: impl Fn([f64; 2]) -> f64,
+    learned: Option<&[f64]>,
+    cfg: &HipPlannerConfig,
+) -> Option<Choice> {
+    library
+        .iter()
+        .enumerate()
+        .filter_map(|(k, t)| {
+            let end = *t.0.last()?;
+            let geometric: f64 = t.0.iter().map(|&p| costmap_at(p)).sum();
+            if !geometric.is_finite() {
+                return None;
+            }
+            let learned = learned.and_then(|l| l.get(k).copied()).unwrap_or(0.0);
+            if !learned.is_finite() {
+                return None;
+            }
+            let directive = directive_cost(end, goal_robot_m, cfg);
+            Some(Choice {
+                index: k,
+                total: directive + hip_combined(learned, geometric, cfg.phi),
+                directive,
+                learned,
+                geometric,
+            })
+        })
+        .min_by(|a, b| a.total.total_cmp(&b.total))
+}
+
+/// From a recorded pose sequence `(t_s, x_m, y_m, yaw_rad)` (time order), the
+/// future of every `step_s`-spaced sample: the next `horizon` positions
+/// `step_s` apart, in that sample's robot frame. Positions are taken at the
+/// first recorded pose at or after each time (no interpolation); samples
+/// whose future runs past the recording are left out.
+pub fn future_trajectories(
+    poses: &[(f64, f64, f64, f64)],
+    horizon: usize,
+    step_s: f64,
+) -> Vec<Trajectory> {
+    let mut out = Vec::new();
+    if poses.is_empty() || horizon == 0 || step_s <= 0.0 {
+        return out;
+    }
+    // A microsecond of slack: sample times are sums of float steps.
+    let at_or_after = |t: f64| poses.partition_point(|p| p.0 < t - 1e-6);
+    let (t0, end) = (poses[0].0, poses[poses.len() - 1].0);
+    for n in 0.. {
+        let t = t0 + n as f64 * step_s;
+        if t + horizon as f64 * step_s > end + 1e-6 {
+            break;
+        }
+        let i0 = at_or_after(t);
+        let (_, x0, y0, yaw0) = poses[i0];
+        let (s, c) = yaw0.sin_cos();
+        let points: Vec<[f64; 2]> = (1..=horizon)
+            .filter_map(|k| poses.get(at_or_after(t + k as f64 * step_s)))
+            .map(|&(_, x, y, _)| {
+                let (dx, dy) = (x - x0, y - y0);
+                [c * dx + s * dy, -s * dx + c * dy]
+            })
+            .collect();
+        if points.len() == horizon {
+            out.push(Trajectory(points));
+        }
+    }
+    out
+}
+
+fn sq_dist(a: &Trajectory, b: &Trajectory) -> f64 {
+    a.0.iter()
+        .zip(&b.0)
+        .map(|(p, q)| (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2))
+        .sum()
+}
+
+/// k-means (k-means++ seeding from `seed`, then Lloyd iterations until no
+/// assignment changes or `max_iterations`) over trajectories of equal
+/// length, as HIP builds its library (K = 200). Returns at most `k`
+/// centroids, fewer if there are fewer distinct trajectories.
+pub fn kmeans(data: &[Trajectory], k: usize, max_iterations: usize, seed: u64) -> Vec<Trajectory> {
+    if data.is_empty() || k == 0 {
+        return Vec::new();
+    }
+    let mut rng = seed.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut uniform = move || {
+        rng = rng
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (rng >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut centroids = vec![data[(uniform() * data.len() as f64) as usize % data.len()].clone()];
+    let mut nearest: Vec<f64> = data.iter().map(|d| sq_dist(d, &centroids[0])).collect();
+    while centroids.len() < k {
+        let total: f64 = nearest.iter().sum();
+        if total <= 0.0 {
+            break; // every point is already a centroid
+        }
+        let mut r = uniform() * total;
+        let pick = nearest
+            .iter()
+            .position(|&d| {
+                r -= d;
+                r <= 0.0
+            })
+            .unwrap_or(data.len() - 1);
+        centroids.push(data[pick].clone());
+        for (n, d) in nearest.iter_mut().zip(data) {
+            *n = n.min(sq_dist(d, &centroids[centroids.len() - 1]));
+        }
+    }
+    let h = data[0].0.len();
+    let mut assignment = vec![usize::MAX; data.len()];
+    for _ in 0..max_iterations {
+        let mut changed = false;
+        for (a, d) in assignment.iter_mut().zip(data) {
+            let best = (0..centroids.len())
+                .min_by(|&i, &j| sq_dist(d, &centroids[i]).total_cmp(&sq_dist(d, &centroids[j])))
+                .expect("at least one centroid");
+            changed |= *a != best;
+            *a = best;
+        }
+        if !changed {
+            break;
+        }
+        let mut sums = vec![vec![[0.0f64; 2]; h]; centroids.len()];
+        let mut counts = vec![0usize; centroids.len()];
+        for (&a, d) in assignment.iter().zip(data) {
+            counts[a] += 1;
+            for (s, p) in sums[a].iter_mut().zip(&d.0) {
+                s[0] += p[0];
+                s[1] += p[1];
+            }
+        }
+        for ((c, s), &n) in centroids.iter_mut().zip(sums).zip(&counts) {
+            if n > 0 {
+                c.0 = s
+                    .into_iter()
+                    .map(|p| [p[0] / n as f64, p[1] / n as f64])
+                    .collect();
+            }
+        }
+    }
+    centroids
+}
+
+/// The library file (`hip-library.toml`): written by `farsight hip-library`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LibraryFile {
+    /// Seconds between trajectory points.
+    pub step_s: f64,
+    pub trajectories: Vec<Vec<[f64; 2]>>,
+}
+
+impl Validate for LibraryFile {
+    fn validate(&self) -> Result<(), ConfigError> {
+        ConfigError::check(
+            !self.trajectories.is_empty(),
+            "trajectories",
+            "[]",
+            "at least one trajectory",
+        )?;
+        let h = self.trajectories[0].len();
+        for (i, t) in self.trajectories.iter().enumerate() {
+            ConfigError::check(
+                t.len() == h && h > 0,
+                &format!("trajectories[{i}]"),
+                format!("{} points", t.len()),
+                &format!("{h} points like trajectories[0]"),
+            )?;
+            ConfigError::check(
+                t.iter().all(|p| p[0].is_finite() && p[1].is_finite()),
+                &format!("trajectories[{i}]"),
+                "a non-finite point",
+                "finite coordinates",
+            )?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn line(dx: f64, dy: f64) -> Trajectory {
+        Trajectory((1..=10).map(|i| [dx * i as f64, dy * i as f64]).collect())
+    }
+
+    #[test]
+    fn directive_region_by_hand() {
+        let cfg = HipPlannerConfig::default();
+        // Goal 10 m to the left (+y): the region is x in [-1, 1], y >= 3.
+        assert_eq!(directive_cost([0.5, 4.0], [0.0, 10.0], &cfg), 0.0);
+        assert_eq!(
+            directive_cost([1.5, 4.0], [0.0, 10.0], &cfg),
+            100.0,
+            "too far to the side"
+        );
+        assert_eq!(
+            directive_cost([0.0, 2.0], [0.0, 10.0], &cfg),
+            100.0,
+            "short of the offset"
+        );
+        // A goal 1 m ahead: its region starts at the goal.
+        assert_eq!(directive_cost([1.2, 0.0], [1.0, 0.0], &cfg), 0.0);
+    }
+
+    #[test]
+    fn eq1_picks_by_directive_costmap_and_learned_terms() {
+        let cfg = HipPlannerConfig::default();
+        let lib = [line(0.5, 0.0), line(0.4, 0.3), line(0.4, -0.3)];
+        // Goal to the front-left: only the left trajectory ends in the region.
+        let goal = [8.0, 6.0];
+        let c = choose(&lib, goal, |_| 0.1, None, &cfg).unwrap();
+        assert_eq!((c.index, c.directive), (1, 0.0));
+        // A lethal cell on it: the next best by cost (all miss the region now).
+        let rock = |p: [f64; 2]| {
+            if (p[0] - 2.0).abs() < 0.3 && (p[1] - 1.5).abs() < 0.3 {
+                f64::INFINITY
+            } else {
+                0.1
+            }
+        };
+        let c = choose(&lib, goal, rock, None, &cfg).unwrap();
+        assert_ne!(c.index, 1);
+        // By hand: L = 0 + 0.25 * learned + 0.75 * 10 * 0.1 for the left one.
+        let learned = [5.0, 2.0, 0.0];
+        let c = choose(&lib, goal, |_| 0.1, Some(&learned), &cfg).unwrap();
+        assert_eq!(c.index, 1);
+        assert!((c.total - (0.25 * 2.0 + 0.75 * 1.0)).abs() < 1e-12, "{c:?}");
+        // With phi = 0 only learned + directive count; a huge learned cost on
+        // the left one makes missing the region (delta 100) cheaper.
+        let l2 = [5.0, 1000.0, 0.0];
+        let c = choose(
+            &lib,
+            goal,
+            |_| 0.1,
+            Some(&l2),
+            &HipPlannerConfig { phi: 0.0, ..cfg },
+        )
+        .unwrap();
+        assert_eq!(c.index, 2);
+        assert!(choose(&lib, goal, |_| f64::INFINITY, None, &cfg).is_none());
+    }
+
+    #[test]
+    fn future_trajectories_are_in_each_samples_robot_frame() {
+        // Driving north at 1 m/s, facing north: the future is straight ahead.
+        let poses: Vec<_> = (0..=40)
+            .map(|i| {
+                (
+                    i as f64 * 0.1,
+                    5.0,
+                    i as f64 * 0.1,
+                    std::f64::consts::FRAC_PI_2,
+                )
+            })
+            .collect();
+        let t = future_trajectories(&poses, 5, 0.2);
+        assert_eq!(t.len(), 16, "t = 0.0, 0.2, ... 3.0");
+        for tr in &t {
+            for (k, p) in tr.0.iter().enumerate() {
+                let want = 0.2 * (k + 1) as f64;
+                assert!((p[0] - want).abs() < 1e-9 && p[1].abs() < 1e-9, "{p:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn kmeans_recovers_separated_groups() {
+        // Three groups (left, straight, right) with small jitter.
+        let mut data = Vec::new();
+        for j in 0..30 {
+            let e = (j % 5) as f64 * 0.01;
+            data.push(line(0.5, 0.3 + e));
+            data.push(line(0.5 + e, 0.0));
+            data.push(line(0.5, -0.3 - e));
+        }
+        let c = kmeans(&data, 3, 50, 7);
+        assert_eq!(c.len(), 3);
+        let mut ends: Vec<f64> = c.iter().map(|t| t.0.last().unwrap()[1]).collect();
+        ends.sort_by(f64::total_cmp);
+        assert!(
+            (ends[0] + 3.2).abs() < 0.1 && ends[1].abs() < 1e-9 && (ends[2] - 3.2).abs() < 0.1,
+            "{ends:?}"
+        );
+        assert_eq!(kmeans(&data, 3, 50, 7), c, "deterministic for a seed");
+        // Fewer distinct trajectories than k: no duplicates invented.
+        assert_eq!(kmeans(&[line(1.0, 0.0), line(1.0, 0.0)], 5, 10, 1).len(), 1);
+    }
+}
