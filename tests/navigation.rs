@@ -286,7 +286,7 @@ mod bins {
                 PixelEncoding::F32,
             );
             heats[k]
-                .publish_copy(header, bytemuck_bytes(&values))
+                .publish_copy(header, bytemuck::cast_slice(&values))
                 .unwrap();
         };
         // Front: hot in the right quarter of the image (robot's right, about -20..-45 deg).
@@ -324,11 +324,6 @@ mod bins {
         assert_eq!(o[bin(0.0)], 1);
         let total: f32 = s.iter().sum();
         assert!((total - 1.0).abs() < 1e-4, "normalised: {total}");
-    }
-
-    fn bytemuck_bytes(v: &[f32]) -> &[u8] {
-        // SAFETY: f32 has no padding; the slice covers exactly the floats' bytes.
-        unsafe { std::slice::from_raw_parts(v.as_ptr() as *const u8, std::mem::size_of_val(v)) }
     }
 
     /// Bin index of a bearing for bins of `width` radians starting at -pi.

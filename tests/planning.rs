@@ -523,4 +523,77 @@ mod graph {
             );
         }
     }
+
+    #[test]
+    fn a_depth_camera_fixes_near_field_cells_lethal_or_free() {
+        use farsight_interfaces::camera::{Camera, CameraModel, Mount};
+        let ns = Namespace::new("depthnear");
+        let bus = ns.bus("depth-test");
+        let cfg = ns.write(
+            "costmap-fusion.toml",
+            "width_cells = 41\nheight_cells = 41\npublish_rate_hz = 10.0\nlocal_costmaps = []\n[near_field]\ndepth_cameras = [\"front\"]\npixel_stride = 1\n",
+        );
+        let fused = bus.slice_subscriber(&topics::costmap("fused")).unwrap();
+        let fusion = ns.start_stage("farsight-costmap-fusion", "costmap-fusion", &cfg);
+        let pose = bus.publisher(&topics::pose()).unwrap();
+        let info = bus.publisher(&topics::camera_info("front")).unwrap();
+        let depth = bus
+            .slice_publisher(&topics::depth("front"), 80 * 60 * 4)
+            .unwrap();
+        // Level camera 1 m up; flat ground and a 1.5 m box 5..6 m ahead, |y| < 0.5.
+        let cam = Camera::new(
+            0,
+            "front",
+            CameraModel::pinhole(80, 60, 40.0, 40.0, 39.5, 29.5),
+            Mount::from_xyz_rpy_deg([0.0, 0.0, 1.0], [0.0; 3]),
+        );
+        let values: Vec<f32> = (0..80 * 60)
+            .map(|i| {
+                let (u, v) = ((i % 80) as f64, (i / 80) as f64);
+                let optical = cam.model.unproject(u, v);
+                let r = cam.mount.robot_from_optical * optical;
+                let t_box = 5.0 / r.x;
+                let z_box = 1.0 + r.z * t_box;
+                let t = if r.x > 0.0 && (r.y * t_box).abs() < 0.5 && (0.0..1.5).contains(&z_box) {
+                    t_box
+                } else if r.z < -1e-6 {
+                    1.0 / -r.z
+                } else {
+                    return f32::INFINITY;
+                };
+                (t * optical.z) as f32 // depth along the optical axis
+            })
+            .collect();
+        let end = Instant::now() + Duration::from_secs(15);
+        loop {
+            pose.publish(&Pose::default()).unwrap();
+            info.publish(&cam.to_info(Stamp::new(1, 0))).unwrap();
+            depth
+                .publish_copy(
+                    ImageHeader::packed(Stamp::new(1, 0), 0, 80, 60, PixelEncoding::F32),
+                    bytemuck::cast_slice(&values),
+                )
+                .unwrap();
+            std::thread::sleep(Duration::from_millis(50));
+            if let Some(f) = fused.latest().unwrap() {
+                let h = *f.header();
+                let at = |x: f64, y: f64| {
+                    let j = ((x - h.x_min_m) / h.resolution_m as f64).round() as usize;
+                    let i = ((h.y_max_m - y) / h.resolution_m as f64).round() as usize;
+                    f.data()[i * h.width as usize + j]
+                };
+                if at(5.0, 0.0).cost_s_per_m.is_infinite() {
+                    assert_eq!(at(3.0, 0.0).cost_s_per_m, 0.5, "ground ahead is free");
+                    assert_eq!(at(3.0, 0.0).variance, 0.0, "fixed by near-field");
+                    assert_eq!(at(-3.0, 0.0).cost_s_per_m, 1.0, "behind: unseen, unknown");
+                    break;
+                }
+            }
+            assert!(
+                Instant::now() < end,
+                "the box never became lethal\n{}",
+                fusion.stderr_so_far()
+            );
+        }
+    }
 }

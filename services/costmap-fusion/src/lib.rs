@@ -7,6 +7,7 @@
 //! - [`swath`]: polar bins rasterised into the cells they cover;
 //! - [`map`]: the fused map: fixed near-field cells, Kalman far-field cells,
 //!   the planning cost, and costmap messages for each layer;
+//! - [`near_field`]: depth images and class maps -> fixed near-field cells;
 //! - [`hip`]: HIP's scaling of a geometric costmap and its phi-weighted sum
 //!   with a learned cost.
 //!
@@ -29,5 +30,6 @@ pub mod grid;
 pub mod hip;
 pub mod kalman;
 pub mod map;
+pub mod near_field;
 pub mod stage;
 pub mod swath;

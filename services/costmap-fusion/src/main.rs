@@ -1,17 +1,25 @@
 //! `farsight-costmap-fusion`: FITAM's fused costmap as a stage. Polar bins
 //! (`bins/polar`) update the far-field Kalman layer at the pose they arrive
-//! with; near-field costmaps from other systems (`costmap/<name>`) fix cells;
-//! the window follows the pose. The fused map and its layers go out at a
+//! with; near-field sensing fixes cells: costmaps from other systems
+//! (`costmap/<name>`), depth images and class maps of the configured cameras;
+//! the window follows the pose. Frames are placed with the latest pose (no
+//! pose interpolation by capture time yet). The fused map and its layers go out at a
 //! fixed rate on `costmap/fused`, `costmap/far_field` and `costmap/near_field`.
 
 use anyhow::Result;
 use farsight_costmap_fusion::map::FusionMap;
+use farsight_costmap_fusion::near_field::{class_map_cells, depth_cells, FixedCell};
 use farsight_costmap_fusion::stage::FusionStageConfig;
 use farsight_costmap_fusion::swath::PolarGeometry;
+use farsight_inference::class_table::ClassTableFile;
+use farsight_inference::normals::RayTable;
+use farsight_interfaces::camera::Camera;
 use farsight_interfaces::clock::{Clock, WallClock};
+use farsight_interfaces::msg::{CameraInfo, ImageHeader, PixelEncoding};
 use farsight_interfaces::msg::{CostmapLayer, HealthState, Pose, Stamp};
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
+use farsight_interfaces::transport::ipc::{SliceSubscriber, Subscriber};
 use farsight_stage::{load_config, Health, StageArgs};
 use std::ops::ControlFlow;
 use std::time::Duration;
@@ -34,6 +42,39 @@ fn run() -> Result<()> {
         .iter()
         .map(|n| bus.slice_subscriber(&topics::costmap(n)))
         .collect::<Result<Vec<_>, _>>()?;
+    let base_dir = args
+        .config
+        .as_deref()
+        .and_then(std::path::Path::parent)
+        .unwrap_or(std::path::Path::new("."))
+        .to_path_buf();
+    let nf = &config.near_field;
+    let mut class_table = if nf.class_map_cameras.is_empty() {
+        None
+    } else {
+        Some(ClassTableFile::open(&base_dir.join(&nf.class_table))?)
+    };
+    // Frame subscribers apart from the per-camera state: the wait loop
+    // borrows their listeners while the state changes.
+    let (mut sources, mut frames) = (Vec::new(), Vec::new());
+    for (names, kind) in [
+        (&nf.depth_cameras, Source::Depth),
+        (&nf.class_map_cameras, Source::Classes),
+    ] {
+        for name in names {
+            frames.push(bus.slice_subscriber(&match kind {
+                Source::Depth => topics::depth(name),
+                Source::Classes => topics::class_map(name),
+            })?);
+            sources.push(CameraSource {
+                name: name.clone(),
+                kind,
+                info: bus.subscriber(&topics::camera_info(name))?,
+                camera: None,
+                rays: None,
+            });
+        }
+    }
     let cells = config.width_cells * config.height_cells;
     let outputs = [
         (CostmapLayer::FUSED, "fused"),
@@ -61,6 +102,7 @@ fn run() -> Result<()> {
     let mut next_publish = clock.now_ns();
     let mut listeners = vec![polar.listener()];
     listeners.extend(locals.iter().map(|l| l.listener()));
+    listeners.extend(frames.iter().map(|f| f.listener()));
     ipc::wait_loop(&listeners, Some(Duration::from_millis(50)), |wake| {
         let now = clock.now_ns();
         if let Ok(Some(p)) = poses.latest() {
@@ -112,6 +154,23 @@ fn run() -> Result<()> {
                 (Err(e), _) => health.dropped(&e),
                 _ => {}
             },
+            Wake::Input(k) if k > locals.len() => {
+                let s = k - 1 - locals.len();
+                let src = &mut sources[s];
+                if let Some(Err(e)) = class_table.as_mut().map(|t| t.poll()) {
+                    health.dropped(&format_args!("class table edit not applied: {e}"));
+                }
+                match src.observe(&frames[s], pose.as_ref(), &config, class_table.as_ref()) {
+                    Ok(Some(cells)) => {
+                        health.input();
+                        for ((gx, gy), cost) in cells {
+                            map.fix_local(gx, gy, cost);
+                        }
+                    }
+                    Ok(None) => {}
+                    Err(e) => health.dropped(&format_args!("{}: {e}", src.name)),
+                }
+            }
             Wake::Input(k) => match locals[k - 1].latest() {
                 Ok(Some(s)) => {
                     health.input();
@@ -155,4 +214,69 @@ fn run() -> Result<()> {
     })?;
     health.stopping(clock.now_ns());
     Ok(())
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Source {
+    Depth,
+    Classes,
+}
+
+/// One camera feeding the near-field layer, with its model and ray table.
+struct CameraSource {
+    name: String,
+    kind: Source,
+    info: Subscriber<CameraInfo>,
+    camera: Option<Camera>,
+    rays: Option<RayTable>,
+}
+
+impl CameraSource {
+    /// The newest frame as fixed cells; `Ok(None)` when there is none.
+    fn observe(
+        &mut self,
+        frames: &SliceSubscriber<ImageHeader, u8>,
+        pose: Option<&Pose>,
+        config: &FusionStageConfig,
+        classes: Option<&ClassTableFile>,
+    ) -> Result<Option<Vec<FixedCell>>, String> {
+        if let Ok(Some(i)) = self.info.latest() {
+            self.camera = Some(Camera::from_info(&i).map_err(|e| format!("camera info: {e}"))?);
+        }
+        let Some(frame) = frames.latest().map_err(|e| e.to_string())? else {
+            return Ok(None);
+        };
+        let pose = pose.ok_or("a frame before any pose")?;
+        let cam = self.camera.as_ref().ok_or("no camera model yet")?;
+        let h = *frame.header();
+        h.validate(frame.data().len()).map_err(|e| e.to_string())?;
+        let (w, hh) = (h.width as usize, h.height as usize);
+        if self.rays.as_ref().is_none_or(|t| !t.fits(cam, w, hh)) {
+            self.rays = Some(RayTable::new(cam, w, hh));
+        }
+        let rays = self.rays.as_ref().expect("just built");
+        let nf = &config.near_field;
+        let res = config.resolution_m;
+        Ok(Some(match self.kind {
+            Source::Depth => {
+                let depth = farsight_inference::depth_metres(&h, frame.data(), nf.depth_scale_m)
+                    .map_err(|e| e.to_string())?;
+                depth_cells(&depth, rays, cam, pose, res, nf)
+            }
+            Source::Classes => {
+                if h.encoding != PixelEncoding::MONO8 {
+                    return Err(format!("class map must be mono8, got {}", h.encoding));
+                }
+                let ids: Vec<u8> = frame
+                    .data()
+                    .chunks(h.stride_bytes as usize)
+                    .take(hh)
+                    .flat_map(|row| &row[..w])
+                    .copied()
+                    .collect();
+                let table = classes.ok_or("no class table")?.table();
+                class_map_cells(&ids, rays, cam, pose, res, nf, |c| table.cost_s_per_m(c))
+            }
+        }))
+    }
 }

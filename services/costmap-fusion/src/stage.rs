@@ -10,6 +10,17 @@
 //! publish_rate_hz = 2.0          # costmap/fused, costmap/far_field, costmap/near_field
 //! health_rate_hz = 1.0
 //!
+//! [near_field]                   # see farsight_costmap_fusion::near_field::NearFieldConfig
+//! depth_cameras = []             # camera/<name>/depth -> slope/step rules
+//! depth_scale_m = 0.001          # metres per MONO16 depth unit
+//! class_map_cameras = []         # perception/<name>/classes projected onto flat ground
+//! class_table = ""               # class -> cost_s_per_m (required with class_map_cameras)
+//! range_m = 25.0                 # FITAM's local sensing radius
+//! max_step_m = 0.3               # a cell spanning more height is an obstacle
+//! max_slope_deg = 30.0           # ground rising faster from a neighbour is an obstacle
+//! free_cost_s_per_m = 0.5        # a seen cell without an obstacle (depth)
+//! pixel_stride = 2
+//!
 //! [far_field]                    # see farsight_costmap_fusion::kalman::FarFieldConfig
 //! initial_mean_s_per_m = 1.0
 //! initial_variance = 0.4
@@ -19,6 +30,7 @@
 //! ```
 
 use crate::kalman::FarFieldConfig;
+use crate::near_field::NearFieldConfig;
 use farsight_stage::{ConfigError, Validate};
 use serde::{Deserialize, Serialize};
 
@@ -32,6 +44,7 @@ pub struct FusionStageConfig {
     pub local_costmaps: Vec<String>,
     pub publish_rate_hz: f64,
     pub health_rate_hz: f64,
+    pub near_field: NearFieldConfig,
     pub far_field: FarFieldConfig,
 }
 
@@ -45,6 +58,7 @@ impl Default for FusionStageConfig {
             local_costmaps: vec!["local".into()],
             publish_rate_hz: 2.0,
             health_rate_hz: 1.0,
+            near_field: NearFieldConfig::default(),
             far_field: FarFieldConfig::default(),
         }
     }
@@ -80,6 +94,7 @@ impl Validate for FusionStageConfig {
         ] {
             ConfigError::check(v > 0.0 && v <= 1000.0, k, v, "0 < rate <= 1000 Hz")?;
         }
+        self.near_field.validate()?;
         self.far_field.validate()
     }
 }

@@ -100,6 +100,12 @@ impl RayTable {
         }
     }
 
+    /// The ray of pixel `i` (row-major), scaled to unit optical depth; zero
+    /// for a pixel whose ray does not point forward (a fisheye's rim).
+    pub fn ray(&self, i: usize) -> Vector3<f64> {
+        self.rays[i]
+    }
+
     /// Whether this table was built for `camera` at this size.
     pub fn fits(&self, camera: &Camera, width: usize, height: usize) -> bool {
         self.width == width && self.height == height && self.camera == *camera
