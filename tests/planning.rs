@@ -315,11 +315,8 @@ mod graph {
         // The fused map holds the wall as lethal at (8, 0).
         let f = fused.latest().unwrap().expect("a fused costmap");
         let h = *f.header();
-        let j = ((8.0 - h.x_min_m) / h.resolution_m as f64).round() as usize;
-        let i = ((h.y_max_m - 0.0) / h.resolution_m as f64).round() as usize;
-        assert!(f.data()[i * h.width as usize + j]
-            .cost_s_per_m
-            .is_infinite());
+        let k = h.cell_index(8.0, 0.0).expect("inside the map");
+        assert!(f.data()[k].cost_s_per_m.is_infinite());
         // The servo follows the path: forward and turning toward the detour.
         let end = Instant::now() + Duration::from_secs(10);
         loop {
@@ -393,11 +390,7 @@ mod graph {
             std::thread::sleep(Duration::from_millis(50));
             if let (Some(p), Some(f)) = (polar.latest().unwrap(), fused.latest().unwrap()) {
                 let h = *f.header();
-                let at = |x: f64, y: f64| {
-                    let j = ((x - h.x_min_m) / h.resolution_m as f64).round() as usize;
-                    let i = ((h.y_max_m - y) / h.resolution_m as f64).round() as usize;
-                    f.data()[i * h.width as usize + j]
-                };
+                let at = |x: f64, y: f64| f.data()[h.cell_index(x, y).expect("inside the map")];
                 let (ahead, behind) = (at(0.0, 60.0), at(0.0, -60.0));
                 if f.header().stamp.frame_seq > 0 && (ahead.cost_s_per_m - 1.0 / 4.25).abs() < 0.01
                 {
@@ -577,11 +570,7 @@ mod graph {
             std::thread::sleep(Duration::from_millis(50));
             if let Some(f) = fused.latest().unwrap() {
                 let h = *f.header();
-                let at = |x: f64, y: f64| {
-                    let j = ((x - h.x_min_m) / h.resolution_m as f64).round() as usize;
-                    let i = ((h.y_max_m - y) / h.resolution_m as f64).round() as usize;
-                    f.data()[i * h.width as usize + j]
-                };
+                let at = |x: f64, y: f64| f.data()[h.cell_index(x, y).expect("inside the map")];
                 if at(5.0, 0.0).cost_s_per_m.is_infinite() {
                     assert_eq!(at(3.0, 0.0).cost_s_per_m, 0.5, "ground ahead is free");
                     assert_eq!(at(3.0, 0.0).variance, 0.0, "fixed by near-field");

@@ -507,6 +507,17 @@ impl CostmapHeader {
         ]
     }
 
+    /// Payload index of the cell holding world point (x, y), FITAM's rule
+    /// `j = floor((x - x_min) / res + 0.5)`, `i = floor((y_max - y) / res + 0.5)`;
+    /// `None` outside the map.
+    pub fn cell_index(&self, x_m: f64, y_m: f64) -> Option<usize> {
+        let res = self.resolution_m as f64;
+        let j = ((x_m - self.x_min_m) / res + 0.5).floor();
+        let i = ((self.y_max_m - y_m) / res + 0.5).floor();
+        (j >= 0.0 && i >= 0.0 && j < self.width as f64 && i < self.height as f64)
+            .then(|| i as usize * self.width as usize + j as usize)
+    }
+
     /// Cells the payload must hold.
     pub fn cell_count(&self) -> usize {
         self.width as usize * self.height as usize
@@ -638,6 +649,38 @@ pub struct CameraInfo {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn costmap_cells_by_the_reference_rule() {
+        let h = CostmapHeader {
+            width: 4,
+            height: 3,
+            resolution_m: 2.0,
+            x_min_m: 10.0,
+            y_max_m: 20.0,
+            ..Default::default()
+        };
+        // Column j spans x in [10 + 2j - 1, 10 + 2j + 1); row i spans y down from 20.
+        assert_eq!(h.cell_index(10.0, 20.0), Some(0));
+        assert_eq!(h.cell_index(10.99, 19.01), Some(0));
+        assert_eq!(
+            h.cell_index(11.0, 20.0),
+            Some(1),
+            "the boundary goes to the next cell"
+        );
+        assert_eq!(h.cell_index(16.0, 16.0), Some(2 * 4 + 3));
+        assert_eq!(h.cell_index(8.9, 20.0), None);
+        assert_eq!(
+            h.cell_index(10.0, 21.0),
+            Some(0),
+            "row 0 spans y in (19, 21]"
+        );
+        assert_eq!(h.cell_index(10.0, 21.5), None);
+        for k in 0..12 {
+            let [x, y] = h.cell_centre_m(k);
+            assert_eq!(h.cell_index(x, y), Some(k));
+        }
+    }
 
     #[test]
     fn pose_frame_transforms_by_hand() {

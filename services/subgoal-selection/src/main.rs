@@ -418,22 +418,14 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
                         );
                         return ControlFlow::Continue(());
                     };
-                    let res = h.resolution_m as f64;
                     // Off the map is unknown: the scaled value of the unknown cost
                     // would need the map's softmax sum, so count it as free (0)
                     // rather than invent one; the directive still pulls to the goal.
                     let at = |q: [f64; 2]| {
                         let w = p.to_world_frame(q);
-                        let j = ((w[0] - h.x_min_m) / res).round();
-                        let i = ((h.y_max_m - w[1]) / res).round();
-                        if j < 0.0 || i < 0.0 || j >= h.width as f64 || i >= h.height as f64 {
-                            return 0.0;
-                        }
-                        let v = scaled[i as usize * h.width as usize + j as usize];
-                        if v.is_nan() {
-                            0.0
-                        } else {
-                            v as f64
+                        match h.cell_index(w[0], w[1]).map(|k| scaled[k]) {
+                            Some(v) if !v.is_nan() => v as f64,
+                            _ => 0.0,
                         }
                     };
                     match choose(library, goal_robot, at, None, &config.hip) {
