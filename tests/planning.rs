@@ -585,4 +585,114 @@ mod graph {
             );
         }
     }
+
+    /// HIP with a learned model: a test ONNX model (written by the test
+    /// support, no training) whose log q depends on the image's colour.
+    /// The same library and costmap give a different choice for a green and
+    /// a red camera frame, through ONNX Runtime in the subgoal stage.
+    #[test]
+    fn hip_learned_term_comes_from_an_onnx_model_on_the_camera_frame() {
+        let ns = Namespace::new("hiponnx");
+        let bus = ns.bus("hip-onnx-test");
+        // Straight (ends in the goal region), left and right (miss it).
+        let line = |dx: f64, dy: f64| {
+            (1..=10)
+                .map(|i| format!("[{}, {}]", dx * i as f64, dy * i as f64))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        ns.write(
+            "hip-library.toml",
+            &format!(
+                "step_s = 0.2\ntrajectories = [[{}], [{}], [{}]]\n",
+                line(0.4, 0.0),
+                line(0.3, 0.25),
+                line(0.3, -0.25)
+            ),
+        );
+        // log q = w . mean colour: green frames favour left, red ones straight.
+        let model = farsight_tests::onnx_fixture::mean_colour_linear(
+            8,
+            8,
+            &[
+                [0.0, -1000.0, 0.0],
+                [-1000.0, 0.0, 0.0],
+                [-1000.0, -1000.0, 0.0],
+            ],
+        );
+        std::fs::write(ns.write("hip.onnx", "").as_path(), model).unwrap();
+        ns.write(
+            "hip-model.toml",
+            "model = \"hip.onnx\"\n[input]\nname = \"image\"\nlayout = \"nchw\"\nwidth = 8\nheight = 8\nresize = \"bilinear\"\ncolor = \"rgb\"\nscale = 0.00392156862745098\n[[outputs]]\nname = \"out\"\nkind = \"trajectory_log_likelihood\"\nclasses = 3\n",
+        );
+        let cfg = ns.write(
+            "subgoal-selection.toml",
+            "method = \"hip\"\nhip_library = \"hip-library.toml\"\nhip_model = \"hip-model.toml\"\nreplan_rate_hz = 20.0\n",
+        );
+        let planned = bus.subscriber(&topics::path("planned")).unwrap();
+        let planner = ns.start_stage("farsight-subgoal-selection", "subgoal-selection", &cfg);
+        let pose = bus.publisher(&topics::pose()).unwrap();
+        let goal = bus.publisher(&topics::goal()).unwrap();
+        let fused = bus
+            .slice_publisher(&topics::costmap("fused"), 11 * 11)
+            .unwrap();
+        let image = bus
+            .slice_publisher(&topics::camera_image("front"), 16 * 16 * 3)
+            .unwrap();
+        let (header, cells) = near_field(5, |_, _| false);
+        let choose_with = |rgb: [u8; 3], want_y: &dyn Fn(f32) -> bool| {
+            let pixels: Vec<u8> = (0..16 * 16).flat_map(|_| rgb).collect();
+            let end = Instant::now() + Duration::from_secs(15);
+            loop {
+                pose.publish(&Pose::default()).unwrap();
+                goal.publish(&NavGoal {
+                    kind: GoalKind::LOCAL,
+                    x_m: 20.0,
+                    tolerance_m: 1.0,
+                    ..Default::default()
+                })
+                .unwrap();
+                fused.publish_copy(header, &cells).unwrap();
+                image
+                    .publish_copy(
+                        ImageHeader::packed(Stamp::new(1, 0), 0, 16, 16, PixelEncoding::RGB8),
+                        &pixels,
+                    )
+                    .unwrap();
+                std::thread::sleep(Duration::from_millis(50));
+                if let Some(p) = planned.latest().unwrap() {
+                    if p.points.as_slice().last().is_some_and(|q| want_y(q[1])) {
+                        return;
+                    }
+                }
+                assert!(
+                    Instant::now() < end,
+                    "no HIP choice for {rgb:?}; last {:?}\n{}",
+                    planned
+                        .latest()
+                        .unwrap()
+                        .map(|p| p.points.as_slice().to_vec()),
+                    planner.stderr_so_far()
+                );
+            }
+        };
+        choose_with([0, 255, 0], &|y| y > 2.0); // green: left
+        choose_with([255, 0, 0], &|y| y.abs() < 0.1); // red: straight
+
+        // A model scoring a different number of trajectories than the
+        // library holds is refused at start, naming both.
+        ns.write(
+            "hip-model-4.toml",
+            "model = \"hip.onnx\"\n[input]\nname = \"image\"\nlayout = \"nchw\"\nwidth = 8\nheight = 8\nresize = \"bilinear\"\ncolor = \"rgb\"\nscale = 0.00392156862745098\n[[outputs]]\nname = \"out\"\nkind = \"trajectory_log_likelihood\"\nclasses = 4\n",
+        );
+        let bad = ns.write(
+            "subgoal-selection-bad.toml",
+            "method = \"hip\"\nhip_library = \"hip-library.toml\"\nhip_model = \"hip-model-4.toml\"\n",
+        );
+        let err = ns.start_must_fail("farsight-subgoal-selection", &bad);
+        assert!(
+            err.contains("scores 4 trajectories but the HIP library holds 3"),
+            "{err}"
+        );
+    }
 }

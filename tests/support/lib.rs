@@ -2,6 +2,8 @@
 //! processes in an isolated iceoryx2 namespace, watch their output, and kill
 //! them (SIGKILL, reaped) when a test ends or wants a crash.
 
+pub mod onnx_fixture;
+
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};

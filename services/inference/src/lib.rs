@@ -41,6 +41,8 @@ pub struct Perception {
     pub heatmap: Option<Vec<f32>>,
     /// `[slices, radial bins, members, classes]` logits.
     pub far_field: Option<([usize; 4], Vec<f32>)>,
+    /// HIP: log q(tau | o) per library trajectory.
+    pub trajectory_log_q: Option<Vec<f32>>,
 }
 
 /// Why a frame produced no output. The stage counts and logs these and
@@ -101,6 +103,9 @@ impl Perception {
                 OutputKind::FarFieldEnsemble => {
                     let s = postprocess::far_field(spec, shape, data)?;
                     p.far_field = Some((s, data.to_vec()));
+                }
+                OutputKind::TrajectoryLogLikelihood => {
+                    p.trajectory_log_q = Some(postprocess::trajectory_log_q(spec, shape, data)?);
                 }
             }
         }

@@ -115,6 +115,9 @@ pub enum OutputKind {
     /// FITAM far-field ensemble logits `[slices, radial bins, members, classes]`
     /// (a leading batch dimension of 1 is allowed).
     FarFieldEnsemble,
+    /// HIP's learned density: log q(tau | observation) for each of the
+    /// `classes` trajectories of the library, shape `[1, K]` or `[K]`.
+    TrajectoryLogLikelihood,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -264,6 +267,12 @@ impl Validate for ModelConfig {
                 OutputKind::AffordanceHeatmap => {
                     ConfigError::check(o.classes == 1, &key("classes"), o.classes, "1 channel")?
                 }
+                OutputKind::TrajectoryLogLikelihood => ConfigError::check(
+                    o.classes >= 1,
+                    &key("classes"),
+                    o.classes,
+                    "the library size K (1 or more)",
+                )?,
                 OutputKind::FarFieldEnsemble => {
                     let ok = o.ensemble_shape.is_some_and(|s| s.iter().all(|&d| d > 0));
                     ConfigError::check(

@@ -152,6 +152,20 @@ fn check_output(spec: &OutputSpec, shape: &[i64]) -> Result<(), LoadError> {
                 ));
             }
         }
+        OutputKind::TrajectoryLogLikelihood => {
+            let k = spec.classes as i64;
+            let ok = match shape {
+                [n] => dim_ok(*n, k),
+                [b, n] => dim_ok(*b, 1) && dim_ok(*n, k),
+                _ => false,
+            };
+            if !ok {
+                return Err(mismatch(
+                    format!("[1, {k}]"),
+                    "classes = the trajectory library size K",
+                ));
+            }
+        }
         _ => {
             let c = spec.classes as i64;
             let ok = match (shape.len(), spec.layout) {

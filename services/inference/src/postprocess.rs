@@ -201,6 +201,23 @@ pub fn heatmap(
     ))
 }
 
+/// HIP's per-trajectory log-likelihoods: `classes` finite values.
+pub fn trajectory_log_q(
+    spec: &OutputSpec,
+    shape: &[usize],
+    data: &[f32],
+) -> Result<Vec<f32>, PostprocessError> {
+    check_finite(&spec.name, data)?;
+    if data.len() != spec.classes {
+        return Err(PostprocessError::Shape {
+            name: spec.name.clone(),
+            got: shape.to_vec(),
+            expected: format!("[1, {}] (classes = library size)", spec.classes),
+        });
+    }
+    Ok(data.to_vec())
+}
+
 /// Checks a far-field ensemble output against its configured shape.
 pub fn far_field(
     spec: &OutputSpec,

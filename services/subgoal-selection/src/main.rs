@@ -7,6 +7,8 @@
 
 use anyhow::Result;
 use farsight_costmap_fusion::hip::hip_scaled_costmap;
+use farsight_inference::model_config::{ModelConfig, OutputKind};
+use farsight_inference::onnx::OnnxModel;
 use farsight_interfaces::camera::Camera;
 use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::fixed::FixedVec;
@@ -273,7 +275,35 @@ enum MapPlanner {
         library: Vec<Trajectory>,
         /// The latest costmap's header and its HIP-scaled cells.
         costmap: Option<(CostmapHeader, Vec<f32>)>,
+        /// The learned density model, and -log q per trajectory of the newest frame.
+        model: Option<Box<OnnxModel>>,
+        learned: Option<Vec<f64>>,
     },
+}
+
+/// Loads HIP's learned model; its trajectory output must score exactly the
+/// library's trajectories.
+fn load_hip_model(path: &std::path::Path, library_len: usize) -> Result<Box<OnnxModel>> {
+    let cfg = ModelConfig::load(path)?;
+    let Some(out) = cfg
+        .outputs
+        .iter()
+        .find(|o| o.kind == OutputKind::TrajectoryLogLikelihood)
+    else {
+        anyhow::bail!(
+            "{}: no output of kind \"trajectory_log_likelihood\" for HIP's learned cost",
+            path.display()
+        );
+    };
+    if out.classes != library_len {
+        anyhow::bail!(
+            "{}: output {:?} scores {} trajectories but the HIP library holds {library_len}",
+            path.display(),
+            out.name,
+            out.classes
+        );
+    }
+    Ok(Box::new(OnnxModel::load(&cfg)?))
 }
 
 impl MapPlanner {
@@ -295,9 +325,21 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
             let file: LibraryFile =
                 farsight_stage::load_config_file(&base_dir.join(&config.hip_library))?;
             tracing::info!(trajectories = file.trajectories.len(), "HIP library loaded");
+            let library: Vec<Trajectory> = file.trajectories.into_iter().map(Trajectory).collect();
+            let model = if config.hip_model.as_os_str().is_empty() {
+                tracing::warn!("no hip_model: the learned term -log q is 0 for every trajectory");
+                None
+            } else {
+                Some(load_hip_model(
+                    &base_dir.join(&config.hip_model),
+                    library.len(),
+                )?)
+            };
             MapPlanner::Hip {
-                library: file.trajectories.into_iter().map(Trajectory).collect(),
+                library,
                 costmap: None,
+                model,
+                learned: None,
             }
         }
         _ => MapPlanner::DStarLite(None),
@@ -319,12 +361,37 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
     let mut dirty = true;
     let period_ns = (1e9 / config.replan_rate_hz) as u64;
     let mut next_plan = 0u64;
+    let images = bus.slice_subscriber(&topics::camera_image(&config.camera))?;
     ipc::wait_loop(
-        &[costmaps.listener()],
+        &[costmaps.listener(), images.listener()],
         Some(Duration::from_millis(50)),
         |_| {
             let now = clock.now_ns();
             health.tick(now);
+            if let MapPlanner::Hip {
+                model: Some(model),
+                learned,
+                ..
+            } = &mut planner
+            {
+                // The learned term: -log q(tau | o) of each trajectory for the newest frame.
+                if let Ok(Some(frame)) = images.latest() {
+                    let mut timings = Default::default();
+                    let out = model.run(frame.header(), frame.data(), &mut timings, |outputs| {
+                        farsight_inference::Perception::from_outputs(outputs, None)
+                    });
+                    match out {
+                        Ok(Ok(p)) => {
+                            *learned = p
+                                .trajectory_log_q
+                                .map(|q| q.iter().map(|&v| -(v as f64)).collect());
+                            dirty = true;
+                        }
+                        Ok(Err(e)) => health.dropped(&format_args!("HIP model output: {e}")),
+                        Err(e) => health.dropped(&format_args!("HIP model: {e}")),
+                    }
+                }
+            }
             if let Ok(Some(p)) = poses.latest() {
                 tracker.set_pose(p);
                 pose = Some(p);
@@ -410,7 +477,12 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
                         }
                     }
                 }
-                MapPlanner::Hip { library, costmap } => {
+                MapPlanner::Hip {
+                    library,
+                    costmap,
+                    learned,
+                    ..
+                } => {
                     let Some((h, scaled)) = costmap else {
                         health.set(
                             HealthState::DEGRADED,
@@ -428,7 +500,7 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
                             _ => 0.0,
                         }
                     };
-                    match choose(library, goal_robot, at, None, &config.hip) {
+                    match choose(library, goal_robot, at, learned.as_deref(), &config.hip) {
                         Some(c) => {
                             tracing::debug!(?c, "HIP choice");
                             std::iter::once(robot)

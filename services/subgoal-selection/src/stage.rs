@@ -2,7 +2,7 @@
 //!
 //! ```toml
 //! method = "povnav"              # "povnav", "lrn", "goal_heuristic", "dstar_lite" or "hip"
-//! camera = "front"               # povnav: reads perception/<camera>/navigability
+//! camera = "front"               # povnav: reads perception/<camera>/navigability; hip: camera/<camera>/image
 //! robot_width_m = 0.8            # povnav: footprint for the safe visual path
 //! safety_margin_m = 0.2
 //! subgoal_distance_m = 25.0      # lrn: the heading becomes a subgoal this far out;
@@ -10,6 +10,9 @@
 //! costmap = "fused"              # dstar_lite, hip: plans on costmap/<costmap>
 //! replan_rate_hz = 2.0           # dstar_lite, hip: at most this often (D* Lite also on each change)
 //! hip_library = ""               # hip: the trajectory library (`farsight hip-library` writes one)
+//! hip_model = ""                 # hip: model config of the learned density (an output of kind
+//!                                # "trajectory_log_likelihood", classes = library size) run on
+//!                                # camera/<camera>/image; empty: the learned term is 0
 //! path_max_range_m = 50.0        # povnav: robot-frame path points further out are dropped
 //!                                # (near the horizon line, ground projection is ill-conditioned)
 //! health_rate_hz = 1.0
@@ -40,6 +43,7 @@ pub struct SubgoalStageConfig {
     pub costmap: String,
     pub replan_rate_hz: f64,
     pub hip_library: std::path::PathBuf,
+    pub hip_model: std::path::PathBuf,
     pub health_rate_hz: f64,
     pub anchor_latitude_deg: Option<f64>,
     pub anchor_longitude_deg: Option<f64>,
@@ -61,6 +65,7 @@ impl Default for SubgoalStageConfig {
             costmap: "fused".into(),
             replan_rate_hz: 2.0,
             hip_library: Default::default(),
+            hip_model: Default::default(),
             health_rate_hz: 1.0,
             anchor_latitude_deg: None,
             anchor_longitude_deg: None,
