@@ -231,6 +231,22 @@ mod graph {
         (header, cells)
     }
 
+    /// Localisation and the operator, as the planners see them: the robot at
+    /// the origin facing east, the goal 20 m ahead.
+    fn robot_at_origin_goal_ahead(
+        pose: &farsight_interfaces::transport::ipc::Publisher<Pose>,
+        goal: &farsight_interfaces::transport::ipc::Publisher<NavGoal>,
+    ) {
+        pose.publish(&Pose::default()).unwrap();
+        goal.publish(&NavGoal {
+            kind: GoalKind::LOCAL,
+            x_m: 20.0,
+            tolerance_m: 1.0,
+            ..Default::default()
+        })
+        .unwrap();
+    }
+
     #[test]
     fn a_wall_seen_by_near_field_sensing_is_planned_around_and_driven() {
         let ns = Namespace::new("planning");
@@ -270,14 +286,7 @@ mod graph {
         let end = Instant::now() + Duration::from_secs(20);
         let mut around = None;
         while Instant::now() < end && around.is_none() {
-            pose.publish(&Pose::default()).unwrap();
-            goal.publish(&NavGoal {
-                kind: GoalKind::LOCAL,
-                x_m: 20.0,
-                tolerance_m: 1.0,
-                ..Default::default()
-            })
-            .unwrap();
+            robot_at_origin_goal_ahead(&pose, &goal);
             local.publish_copy(header, &cells).unwrap();
             if let Some(p) = planned.latest().unwrap() {
                 let pts = p.points.as_slice();
@@ -472,14 +481,7 @@ mod graph {
         let wait_path = |rock: bool, want: &dyn Fn(&[[f32; 2]]) -> bool| {
             let end = Instant::now() + Duration::from_secs(15);
             while Instant::now() < end {
-                pose.publish(&Pose::default()).unwrap();
-                goal.publish(&NavGoal {
-                    kind: GoalKind::LOCAL,
-                    x_m: 20.0,
-                    tolerance_m: 1.0,
-                    ..Default::default()
-                })
-                .unwrap();
+                robot_at_origin_goal_ahead(&pose, &goal);
                 let (header, cells) = ground(rock);
                 local.publish_copy(header, &cells).unwrap();
                 if let Some(p) = planned.latest().unwrap() {
@@ -644,14 +646,7 @@ mod graph {
             let pixels: Vec<u8> = (0..16 * 16).flat_map(|_| rgb).collect();
             let end = Instant::now() + Duration::from_secs(15);
             loop {
-                pose.publish(&Pose::default()).unwrap();
-                goal.publish(&NavGoal {
-                    kind: GoalKind::LOCAL,
-                    x_m: 20.0,
-                    tolerance_m: 1.0,
-                    ..Default::default()
-                })
-                .unwrap();
+                robot_at_origin_goal_ahead(&pose, &goal);
                 fused.publish_copy(header, &cells).unwrap();
                 image
                     .publish_copy(
