@@ -90,6 +90,18 @@ impl CostGrid {
         })
     }
 
+    /// The neighbours in a fixed array (no allocation in the search's inner
+    /// loop, and no borrow of the grid while the caller updates vertices).
+    fn neighbour_array(&self, c: (usize, usize)) -> ([(usize, usize); 8], usize) {
+        let mut out = [(0, 0); 8];
+        let mut n = 0;
+        for p in self.neighbours(c) {
+            out[n] = p;
+            n += 1;
+        }
+        (out, n)
+    }
+
     /// Total cost of a path of neighbouring cells.
     pub fn path_cost(&self, path: &[(usize, usize)]) -> f64 {
         path.windows(2).map(|w| self.step_cost(w[0], w[1])).sum()
@@ -261,16 +273,25 @@ impl DStarLite {
         None
     }
 
+    /// rhs(u) = min over successors s of c(u, s) + g(s).
+    fn best_successor(&self, u: (usize, usize)) -> f64 {
+        self.grid
+            .neighbours(u)
+            .map(|s| self.grid.step_cost(u, s) + self.g[self.idx(s)])
+            .fold(f64::INFINITY, f64::min)
+    }
+
     fn update_vertex(&mut self, u: (usize, usize)) {
         let ui = self.idx(u);
         if u != self.goal {
-            let best = self
-                .grid
-                .neighbours(u)
-                .map(|s| self.grid.step_cost(u, s) + self.g[self.idx(s)])
-                .fold(f64::INFINITY, f64::min);
-            self.rhs[ui] = best;
+            self.rhs[ui] = self.best_successor(u);
         }
+        self.requeue(u);
+    }
+
+    /// Queues `u` if it is inconsistent, takes it out otherwise.
+    fn requeue(&mut self, u: (usize, usize)) {
+        let ui = self.idx(u);
         if self.g[ui] != self.rhs[ui] {
             let k = self.key(u);
             self.push(ui, k);
@@ -296,15 +317,40 @@ impl DStarLite {
             if k_old < k_new {
                 self.push(ui, k_new);
             } else if self.g[ui] > self.rhs[ui] {
+                // u got cheaper: a predecessor's rhs can only drop to the
+                // way through u (the optimised version's O(1) update).
                 self.g[ui] = self.rhs[ui];
                 self.queued[ui] = None;
-                for p in self.grid.neighbours(u).collect::<Vec<_>>() {
-                    self.update_vertex(p);
+                let (around, n) = self.grid.neighbour_array(u);
+                for &s in &around[..n] {
+                    let si = self.idx(s);
+                    if s != self.goal {
+                        let via_u = self.grid.step_cost(s, u) + self.g[ui];
+                        if via_u < self.rhs[si] {
+                            self.rhs[si] = via_u;
+                        }
+                    }
+                    self.requeue(s);
                 }
             } else {
+                // u got dearer: only predecessors whose best way was through
+                // u need their rhs recomputed.
+                let g_old = self.g[ui];
                 self.g[ui] = f64::INFINITY;
-                for p in self.grid.neighbours(u).chain([u]).collect::<Vec<_>>() {
-                    self.update_vertex(p);
+                let (around, n) = self.grid.neighbour_array(u);
+                for &s in around[..n].iter().chain([&u]) {
+                    let si = self.idx(s);
+                    if s != self.goal {
+                        let through_u = if s == u {
+                            f64::NAN
+                        } else {
+                            self.grid.step_cost(s, u) + g_old
+                        };
+                        if s == u || self.rhs[si] == through_u {
+                            self.rhs[si] = self.best_successor(s);
+                        }
+                    }
+                    self.requeue(s);
                 }
             }
         }
@@ -332,12 +378,8 @@ impl DStarLite {
             self.last_start = self.start;
         }
         self.grid.set(x, y, cost_s_per_m);
-        for p in self
-            .grid
-            .neighbours((x, y))
-            .chain([(x, y)])
-            .collect::<Vec<_>>()
-        {
+        let (around, n) = self.grid.neighbour_array((x, y));
+        for &p in around[..n].iter().chain([&(x, y)]) {
             self.update_vertex(p);
         }
         true

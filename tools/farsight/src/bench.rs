@@ -31,6 +31,8 @@ pub enum BenchCommand {
     Inference(InferenceArgs),
     /// Per-frame cost of LRN bins, POVNav and the servo law at 640x360 and 1280x720.
     Navigation(NavigationArgs),
+    /// FITAM map updates and D* Lite: first plan vs repair vs A* from scratch.
+    Planning(PlanningArgs),
     /// (internal) the receiving side of one cell of the transport benchmark.
     #[command(hide = true)]
     TransportReceiver(ReceiverArgs),
@@ -103,8 +105,19 @@ pub struct NavigationArgs {
     pub runs: usize,
 }
 
+#[derive(Args)]
+pub struct PlanningArgs {
+    /// Planning grid side, cells (1 m each).
+    #[arg(long, default_value_t = 1000)]
+    pub side: usize,
+    /// Timed repetitions per row.
+    #[arg(long, default_value_t = 20)]
+    pub runs: usize,
+}
+
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
+        BenchCommand::Planning(a) => crate::bench_planning::run(a),
         BenchCommand::Navigation(a) => crate::bench_navigation::run(a),
         BenchCommand::Transport(a) => transport(a),
         BenchCommand::Inference(a) => crate::bench_inference::run(a),

@@ -12,6 +12,7 @@
 mod bench;
 mod bench_inference;
 mod bench_navigation;
+mod bench_planning;
 mod demo;
 mod hip_library;
 mod infer;
