@@ -1,0 +1,26 @@
+//! # farsight-sim
+//!
+//! The closed-loop simulator the demo and the navigation benchmark drive: the
+//! papers evaluate in simulation too (FITAM's land-cover worlds, POVNav's
+//! obstacle fields, HIP's forest, LRN's bug trap, bridge and bush wall).
+//!
+//! - [`world`]: land cover with FITAM's costs, obstacles, optional height;
+//! - [`scenario`]: the named scenarios and random worlds, from a seed;
+//! - [`render`]: a column ray-marching camera renderer: RGB, depth, class ids;
+//!
+//! ```
+//! use farsight_sim::{render::{Frame, Renderer}, scenario::scenario};
+//! use farsight_interfaces::camera::{Camera, CameraModel, Mount};
+//!
+//! let s = scenario("bug-trap", 1).unwrap();
+//! let cam = Camera::new(0, "front", CameraModel::pinhole(160, 90, 80.0, 80.0, 79.5, 44.5),
+//!                       Mount::from_xyz_rpy_deg([0.0, 0.0, 1.0], [0.0; 3]));
+//! let mut frame = Frame::default();
+//! Renderer::new(&cam, 150.0).render(&s.world, s.start, &mut frame);
+//! assert_eq!(frame.rgb.len(), 160 * 90 * 3);
+//! ```
+
+pub mod render;
+pub mod rng;
+pub mod scenario;
+pub mod world;

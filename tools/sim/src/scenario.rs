@@ -1,0 +1,296 @@
+//! Named scenarios from the papers, and random land-cover worlds.
+//!
+//! | name | from | what |
+//! |---|---|---|
+//! | `bug-trap` | LRN | a U-shaped wall opening toward the robot, goal 60 m away behind it |
+//! | `bridge` | LRN | a river across the way 57 m to the goal, one bridge 30 m off the line |
+//! | `bush-wall` | LRN | open field 82 m, a band of bushes across the straight line |
+//! | `road-forest` | FITAM Fig. 1 | forest, a road 60 m to the side that leads to the goal |
+//! | `obstacle-field-1`..`5` | POVNav Env1-Env5 | trees on a jittered grid, gaps 3 m down to 1 m |
+//! | `random` | FITAM | land-cover noise: fields, grass, forest with trees, water, rocks, roads |
+
+use crate::rng::SplitMix64;
+use crate::world::{Cover, Obstacle, World};
+
+#[derive(Debug, Clone)]
+pub struct Scenario {
+    pub name: String,
+    pub world: World,
+    /// Start pose: x, y (m), yaw (rad, ENU).
+    pub start: [f64; 3],
+    pub goal: [f64; 2],
+}
+
+/// Every named scenario (`random` takes its size from [`random_world`]).
+pub const NAMES: [&str; 10] = [
+    "bug-trap",
+    "bridge",
+    "bush-wall",
+    "road-forest",
+    "obstacle-field-1",
+    "obstacle-field-2",
+    "obstacle-field-3",
+    "obstacle-field-4",
+    "obstacle-field-5",
+    "random",
+];
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("unknown scenario {0:?}; known: {known}", known = NAMES.join(", "))]
+pub struct UnknownScenario(pub String);
+
+/// Builds a named scenario; `seed` varies scattered details (tree jitter,
+/// random worlds) but never the layout that names the scenario.
+pub fn scenario(name: &str, seed: u64) -> Result<Scenario, UnknownScenario> {
+    let mut rng = SplitMix64::new(seed);
+    let s = match name {
+        "bug-trap" => {
+            let mut w = World::new(120, 100, Cover::Grass);
+            // The cup: back wall 10 m before the goal line, arms toward the start.
+            w.line_obstacle((55, 30), (55, 70), Obstacle::Wall);
+            w.line_obstacle((35, 30), (55, 30), Obstacle::Wall);
+            w.line_obstacle((35, 70), (55, 70), Obstacle::Wall);
+            Scenario {
+                name: name.into(),
+                world: w,
+                start: [20.0, 50.0, 0.0],
+                goal: [80.0, 50.0],
+            }
+        }
+        "bridge" => {
+            let mut w = World::new(110, 130, Cover::Grass);
+            w.fill_cover(45, 0, 52, 129, Cover::Water);
+            w.fill_cover(45, 78, 52, 83, Cover::Road);
+            Scenario {
+                name: name.into(),
+                world: w,
+                start: [20.0, 50.0, 0.0],
+                goal: [77.0, 50.0],
+            }
+        }
+        "bush-wall" => {
+            let mut w = World::new(130, 120, Cover::Field);
+            w.fill_cover(55, 15, 60, 105, Cover::Bushes);
+            for y in 15..=105 {
+                for x in 55..=60 {
+                    if rng.unit() < 0.5 {
+                        w.set_obstacle(x, y, Obstacle::Bush);
+                    }
+                }
+            }
+            Scenario {
+                name: name.into(),
+                world: w,
+                start: [20.0, 60.0, 0.0],
+                goal: [102.0, 60.0],
+            }
+        }
+        "road-forest" => {
+            let mut w = World::new(240, 240, Cover::Forest);
+            for y in 0..240 {
+                for x in 0..240 {
+                    if (x + y) % 3 == 0 && rng.unit() < 0.15 {
+                        w.set_obstacle(x, y, Obstacle::Tree);
+                    }
+                }
+            }
+            w.fill_cover(178, 0, 182, 239, Cover::Road);
+            w.fill_cover(120, 218, 182, 222, Cover::Road);
+            for y in 0..240 {
+                for x in 0..240 {
+                    if w.cover(x, y) == Some(Cover::Road) {
+                        w.set_obstacle(x, y, Obstacle::None);
+                    }
+                }
+            }
+            clear_around(&mut w, (120, 20), 3);
+            clear_around(&mut w, (120, 220), 3);
+            Scenario {
+                name: name.into(),
+                world: w,
+                start: [120.0, 20.0, std::f64::consts::FRAC_PI_2],
+                goal: [120.0, 220.0],
+            }
+        }
+        n if n.starts_with("obstacle-field-") => {
+            let k: i64 = n["obstacle-field-".len()..]
+                .parse()
+                .ok()
+                .filter(|k| (1..=5).contains(k))
+                .ok_or_else(|| UnknownScenario(name.into()))?;
+            // Env1..Env5: free gaps of 3, 2.5, 2, 1.5, 1 m between 1 m trees.
+            let gap = 3.0 - 0.5 * (k - 1) as f64;
+            let pitch = gap + 1.0;
+            let mut w = World::new(100, 60, Cover::Grass);
+            let mut x: f64 = 25.0;
+            while x < 75.0 {
+                let mut y = 2.0 + rng.range(0.0, pitch);
+                while y < 58.0 {
+                    w.set_obstacle(x.round() as i64, y.round() as i64, Obstacle::Tree);
+                    y += pitch;
+                }
+                x += pitch;
+            }
+            Scenario {
+                name: name.into(),
+                world: w,
+                start: [10.0, 30.0, 0.0],
+                goal: [90.0, 30.0],
+            }
+        }
+        "random" => random_world(seed, 400),
+        _ => return Err(UnknownScenario(name.into())),
+    };
+    Ok(s)
+}
+
+fn clear_around(w: &mut World, c: (i64, i64), r: i64) {
+    for y in c.1 - r..=c.1 + r {
+        for x in c.0 - r..=c.0 + r {
+            w.set_obstacle(x, y, Obstacle::None);
+        }
+    }
+}
+
+/// Smooth value noise in [0, 1) with features about `scale` cells wide.
+fn value_noise(seed: u64, x: f64, y: f64, scale: f64) -> f64 {
+    let (gx, gy) = (x / scale, y / scale);
+    let (x0, y0) = (gx.floor(), gy.floor());
+    let (fx, fy) = (gx - x0, gy - y0);
+    let smooth = |t: f64| t * t * (3.0 - 2.0 * t);
+    let at = |i: f64, j: f64| crate::rng::cell_noise(i as i64, j as i64, seed);
+    let (sx, sy) = (smooth(fx), smooth(fy));
+    let top = at(x0, y0) * (1.0 - sx) + at(x0 + 1.0, y0) * sx;
+    let bottom = at(x0, y0 + 1.0) * (1.0 - sx) + at(x0 + 1.0, y0 + 1.0) * sx;
+    top * (1.0 - sy) + bottom * sy
+}
+
+/// A FITAM-style random land-cover world of `size` x `size` metres (up to
+/// 5000): fields, grass and forest from noise, lakes, scattered rocks, trees in
+/// the forest, and two roads; start and goal in free cells 100 m from the edge
+/// (or a fifth of the size in small worlds) on opposite sides.
+pub fn random_world(seed: u64, size: usize) -> Scenario {
+    let size = size.clamp(50, 5000);
+    let mut rng = SplitMix64::new(seed ^ 0xF17A);
+    let mut w = World::new(size, size, Cover::Grass);
+    for y in 0..size as i64 {
+        for x in 0..size as i64 {
+            let (fx, fy) = (x as f64, y as f64);
+            let veg = value_noise(seed, fx, fy, 40.0);
+            let wet = value_noise(seed ^ 1, fx, fy, 90.0);
+            let cover = if wet > 0.82 {
+                Cover::Water
+            } else if veg > 0.66 {
+                Cover::Forest
+            } else if veg > 0.58 {
+                Cover::Bushes
+            } else if veg < 0.3 {
+                Cover::Field
+            } else {
+                Cover::Grass
+            };
+            w.set_cover(x, y, cover);
+            let r = crate::rng::cell_noise(x, y, seed ^ 2);
+            if cover == Cover::Forest && r < 0.12 {
+                w.set_obstacle(x, y, Obstacle::Tree);
+            } else if cover != Cover::Water && r > 0.998 {
+                w.set_obstacle(x, y, Obstacle::Rock);
+            }
+        }
+    }
+    // Two roads: a meandering east-west and a north-south one.
+    for (horizontal, offset) in [(true, rng.range(0.3, 0.7)), (false, rng.range(0.3, 0.7))] {
+        let mut c = offset * size as f64;
+        for t in 0..size as i64 {
+            c += rng.range(-0.7, 0.7);
+            c = c.clamp(10.0, size as f64 - 10.0);
+            for d in -2..=2 {
+                let (x, y) = if horizontal {
+                    (t, c as i64 + d)
+                } else {
+                    (c as i64 + d, t)
+                };
+                w.set_cover(x, y, Cover::Road);
+                w.set_obstacle(x, y, Obstacle::None);
+            }
+        }
+    }
+    let margin = (size as f64 / 5.0).min(100.0);
+    let mut free_near = |x: f64, y: f64| -> [f64; 2] {
+        for r in 0..200i64 {
+            let (cx, cy) = (
+                x as i64 + rng.range(-(r as f64), r as f64 + 1.0) as i64,
+                y as i64 + rng.range(-(r as f64), r as f64 + 1.0) as i64,
+            );
+            if !w.lethal(cx, cy) && w.cost_s_per_m(cx, cy) < 5.0 {
+                return [cx as f64, cy as f64];
+            }
+        }
+        [x, y]
+    };
+    let start = free_near(margin, margin);
+    let goal = free_near(size as f64 - margin, size as f64 - margin);
+    clear_around(&mut w, (start[0] as i64, start[1] as i64), 1);
+    let yaw = (goal[1] - start[1]).atan2(goal[0] - start[0]);
+    Scenario {
+        name: "random".into(),
+        world: w,
+        start: [start[0], start[1], yaw],
+        goal,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn named_scenarios_have_their_layouts() {
+        let s = scenario("bug-trap", 1).unwrap();
+        let d = (s.goal[0] - s.start[0]).hypot(s.goal[1] - s.start[1]);
+        assert!((d - 60.0).abs() < 1e-9);
+        assert!(s.world.lethal(55, 50), "the wall is on the straight line");
+        let b = scenario("bridge", 1).unwrap();
+        assert!((b.goal[0] - b.start[0] - 57.0).abs() < 1e-9);
+        assert!(
+            b.world.lethal(48, 50) && !b.world.lethal(48, 80),
+            "water, and the bridge off the line"
+        );
+        let f = scenario("obstacle-field-5", 3).unwrap();
+        let trees = (0..100)
+            .flat_map(|x| (0..60).map(move |y| (x, y)))
+            .filter(|&(x, y)| f.world.lethal(x, y))
+            .count();
+        let sparse = scenario("obstacle-field-1", 3).unwrap();
+        let sparse_trees = (0..100)
+            .flat_map(|x| (0..60).map(move |y| (x, y)))
+            .filter(|&(x, y)| sparse.world.lethal(x, y))
+            .count();
+        assert!(trees > 3 * sparse_trees, "{trees} vs {sparse_trees}");
+        assert!(scenario("obstacle-field-9", 0).is_err());
+        let e = scenario("moon", 0).unwrap_err().to_string();
+        assert!(e.contains("moon") && e.contains("bug-trap"), "{e}");
+    }
+
+    #[test]
+    fn random_worlds_are_deterministic_and_mixed() {
+        let a = random_world(5, 300);
+        let b = random_world(5, 300);
+        let cells = |s: &Scenario| {
+            (0..300)
+                .flat_map(|x| (0..300).map(move |y| (x, y)))
+                .map(|(x, y)| s.world.cost_s_per_m(x, y).to_bits())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(cells(&a), cells(&b));
+        assert_eq!(a.start, b.start);
+        let c = random_world(6, 300);
+        assert_ne!(cells(&a), cells(&c));
+        let covers: std::collections::HashSet<_> = (0..300)
+            .flat_map(|x| (0..300).map(move |y| (x, y)))
+            .filter_map(|(x, y)| a.world.cover(x, y))
+            .collect();
+        assert!(covers.len() >= 5, "{covers:?}");
+        assert!(!a.world.lethal(a.start[0] as i64, a.start[1] as i64));
+    }
+}
