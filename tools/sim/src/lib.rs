@@ -7,6 +7,8 @@
 //! - [`world`]: land cover with FITAM's costs, obstacles, optional height;
 //! - [`scenario`]: the named scenarios and random worlds, from a seed;
 //! - [`render`]: a column ray-marching camera renderer: RGB, depth, class ids;
+//! - [`robot`]: a unicycle with acceleration and terrain speed limits, collisions;
+//! - [`sensor`]: the occlusion-aware 25 m near-field costmap;
 //!
 //! ```
 //! use farsight_sim::{render::{Frame, Renderer}, scenario::scenario};
@@ -22,5 +24,7 @@
 
 pub mod render;
 pub mod rng;
+pub mod robot;
 pub mod scenario;
+pub mod sensor;
 pub mod world;
