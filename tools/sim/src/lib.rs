@@ -9,6 +9,8 @@
 //! - [`render`]: a column ray-marching camera renderer: RGB, depth, class ids;
 //! - [`robot`]: a unicycle with acceleration and terrain speed limits, collisions;
 //! - [`sensor`]: the occlusion-aware 25 m near-field costmap;
+//! - [`episode`]: one drive: robot, metrics (reached, time, distance, cost,
+//!   collisions, interventions) and the map PNG with the track.
 //!
 //! ```
 //! use farsight_sim::{render::{Frame, Renderer}, scenario::scenario};
@@ -22,6 +24,7 @@
 //! assert_eq!(frame.rgb.len(), 160 * 90 * 3);
 //! ```
 
+pub mod episode;
 pub mod render;
 pub mod rng;
 pub mod robot;

@@ -1,0 +1,209 @@
+//! One drive through a scenario: the robot, its metrics and its track, as
+//! the demo and the navigation benchmark score them: reached (within the
+//! goal radius), time, distance, traversal cost, collisions and
+//! interventions (stuck: less than 1 m of progress toward the goal in 10 s,
+//! as the benchmark issue defines; each one is counted once per 10 s).
+
+use crate::render::PALETTE;
+use crate::robot::{Robot, RobotLimits};
+use crate::scenario::Scenario;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EpisodeConfig {
+    pub goal_radius_m: f64,
+    pub max_time_s: f64,
+    pub stuck_window_s: f64,
+    pub limits: RobotLimits,
+}
+
+impl Default for EpisodeConfig {
+    fn default() -> Self {
+        Self {
+            goal_radius_m: 2.0,
+            max_time_s: 300.0,
+            stuck_window_s: 10.0,
+            limits: RobotLimits::default(),
+        }
+    }
+}
+
+/// How a drive ended (or that it has not).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Outcome {
+    Driving,
+    Reached,
+    TimedOut,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Summary {
+    pub scenario: String,
+    pub outcome: Outcome,
+    pub time_s: f64,
+    pub distance_m: f64,
+    pub traversal_cost_s: f64,
+    pub collisions: u32,
+    pub interventions: u32,
+    pub final_goal_distance_m: f64,
+}
+
+pub struct Episode {
+    pub scenario: Scenario,
+    pub config: EpisodeConfig,
+    pub robot: Robot,
+    pub time_s: f64,
+    pub track: Vec<[f64; 2]>,
+    pub interventions: u32,
+    window_start: (f64, f64),
+    outcome: Outcome,
+}
+
+impl Episode {
+    pub fn new(scenario: Scenario, config: EpisodeConfig) -> Self {
+        let robot = Robot::at(scenario.start);
+        let d = goal_distance(&robot, &scenario);
+        Self {
+            track: vec![[robot.x_m, robot.y_m]],
+            scenario,
+            config,
+            robot,
+            time_s: 0.0,
+            interventions: 0,
+            window_start: (0.0, d),
+            outcome: Outcome::Driving,
+        }
+    }
+
+    pub fn outcome(&self) -> Outcome {
+        self.outcome
+    }
+
+    pub fn goal_distance_m(&self) -> f64 {
+        goal_distance(&self.robot, &self.scenario)
+    }
+
+    /// Drives `dt_s` under the command; returns the outcome so far.
+    pub fn step(&mut self, command: (f64, f64), dt_s: f64) -> Outcome {
+        if self.outcome != Outcome::Driving {
+            return self.outcome;
+        }
+        self.robot
+            .step(&self.scenario.world, command, dt_s, &self.config.limits);
+        self.time_s += dt_s;
+        let last = self.track.last().copied().unwrap_or([0.0; 2]);
+        if (last[0] - self.robot.x_m).hypot(last[1] - self.robot.y_m) >= 0.25 {
+            self.track.push([self.robot.x_m, self.robot.y_m]);
+        }
+        let d = self.goal_distance_m();
+        if self.time_s - self.window_start.0 >= self.config.stuck_window_s {
+            if self.window_start.1 - d < 1.0 {
+                self.interventions += 1;
+            }
+            self.window_start = (self.time_s, d);
+        }
+        self.outcome = if d <= self.config.goal_radius_m {
+            Outcome::Reached
+        } else if self.time_s >= self.config.max_time_s {
+            Outcome::TimedOut
+        } else {
+            Outcome::Driving
+        };
+        self.outcome
+    }
+
+    pub fn summary(&self) -> Summary {
+        Summary {
+            scenario: self.scenario.name.clone(),
+            outcome: self.outcome,
+            time_s: self.time_s,
+            distance_m: self.robot.distance_m,
+            traversal_cost_s: self.robot.traversal_cost_s,
+            collisions: self.robot.collisions,
+            interventions: self.interventions,
+            final_goal_distance_m: self.goal_distance_m(),
+        }
+    }
+
+    /// The map (north up) with the driven track (white), the start (blue) and
+    /// the goal (red): packed RGB8, `world.width` x `world.height`.
+    pub fn map_rgb(&self) -> (usize, usize, Vec<u8>) {
+        let w = &self.scenario.world;
+        let (mw, mh) = (w.width, w.height);
+        let mut rgb = vec![0u8; mw * mh * 3];
+        let mut put = |x: i64, y: i64, c: [u8; 3]| {
+            if w.contains(x, y) {
+                let row = mh - 1 - y as usize;
+                rgb[(row * mw + x as usize) * 3..][..3].copy_from_slice(&c);
+            }
+        };
+        for y in 0..mh as i64 {
+            for x in 0..mw as i64 {
+                put(x, y, PALETTE[w.look(x, y).top_class as usize]);
+            }
+        }
+        for p in &self.track {
+            let (x, y) = w.cell_of(p[0], p[1]);
+            put(x, y, [255, 255, 255]);
+        }
+        for (p, c) in [
+            (
+                [self.scenario.start[0], self.scenario.start[1]],
+                [40, 80, 255],
+            ),
+            (self.scenario.goal, [255, 30, 30]),
+        ] {
+            let (cx, cy) = w.cell_of(p[0], p[1]);
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    put(cx + dx, cy + dy, c);
+                }
+            }
+        }
+        (mw, mh, rgb)
+    }
+}
+
+fn goal_distance(r: &Robot, s: &Scenario) -> f64 {
+    (s.goal[0] - r.x_m).hypot(s.goal[1] - r.y_m)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenario::scenario;
+
+    #[test]
+    fn a_straight_drive_reaches_an_open_goal_and_a_blocked_one_counts_interventions() {
+        // Straight into bug-trap's wall (34 m ahead, reached after ~18 s):
+        // the 10 s windows from 20 s and 30 s show no progress.
+        let s = scenario("bug-trap", 1).unwrap();
+        let cfg = EpisodeConfig {
+            max_time_s: 45.0,
+            ..Default::default()
+        };
+        let mut e = Episode::new(s, cfg);
+        while e.step((2.0, 0.0), 0.1) == Outcome::Driving {}
+        let sum = e.summary();
+        assert_eq!(sum.outcome, Outcome::TimedOut);
+        assert!(sum.collisions > 0 && sum.interventions >= 2, "{sum:?}");
+        assert!(sum.distance_m > 30.0 && sum.distance_m < 36.0, "{sum:?}");
+
+        // An open field: straight to the goal 60 m away at up to 2 m/s.
+        let mut open = scenario("bug-trap", 1).unwrap();
+        open.world = crate::world::World::new(120, 100, crate::world::Cover::Grass);
+        let mut e = Episode::new(open, EpisodeConfig::default());
+        while e.step((2.0, 0.0), 0.1) == Outcome::Driving {}
+        let sum = e.summary();
+        assert_eq!(
+            (sum.outcome, sum.collisions, sum.interventions),
+            (Outcome::Reached, 0, 0)
+        );
+        assert!((sum.traversal_cost_s - 0.5 * sum.distance_m).abs() < 1e-6);
+        let (w, h, rgb) = e.map_rgb();
+        assert_eq!(rgb.len(), w * h * 3);
+        assert!(
+            rgb.chunks(3).filter(|p| p == &[255, 255, 255]).count() > 50,
+            "the track is drawn"
+        );
+    }
+}
