@@ -72,10 +72,13 @@ impl CostGrid {
         !c.is_finite() || c < 0.0
     }
 
-    /// Cost of stepping from `a` into its neighbour `b` (seconds).
+    /// Cost of stepping from `a` into its neighbour `b` (seconds). Only the
+    /// entered cell counts, as FITAM's code: a robot standing in a cell the
+    /// map now calls lethal (an inflated margin, a late detection) can still
+    /// plan its way out.
     pub fn step_cost(&self, a: (usize, usize), b: (usize, usize)) -> f64 {
         let c = self.get(b.0, b.1);
-        if Self::blocked(c) || Self::blocked(self.get(a.0, a.1)) {
+        if Self::blocked(c) {
             return f64::INFINITY;
         }
         let diagonal = a.0 != b.0 && a.1 != b.1;

@@ -33,6 +33,12 @@ pub struct WorldPlannerConfig {
     pub min_cost_s_per_m: f64,
     /// The largest grid side, cells (memory bound: g, rhs and cost per cell).
     pub max_side_cells: usize,
+    /// Lethal cells block every cell within this distance too (the robot's
+    /// radius plus a margin), so a path never scrapes past an obstacle or
+    /// cuts a lethal cell's corner. With 1 m cells, 1.5 blocks the eight
+    /// cells around each lethal one: enough for a 0.4 m robot whose carrot
+    /// tracking cuts the inside of turns.
+    pub inflation_radius_m: f64,
 }
 
 impl Default for WorldPlannerConfig {
@@ -43,6 +49,7 @@ impl Default for WorldPlannerConfig {
             unknown_cost_s_per_m: 1.0,
             min_cost_s_per_m: 0.2,
             max_side_cells: 4000,
+            inflation_radius_m: 1.5,
         }
     }
 }
@@ -59,6 +66,12 @@ impl Validate for WorldPlannerConfig {
         ] {
             ConfigError::check(v > 0.0 && v.is_finite(), k, v, "a positive number")?;
         }
+        ConfigError::check(
+            self.inflation_radius_m >= 0.0 && self.inflation_radius_m <= 10.0,
+            "planner.inflation_radius_m",
+            self.inflation_radius_m,
+            "0..=10 m",
+        )?;
         ConfigError::check(
             self.margin_m >= 0.0,
             "planner.margin_m",
@@ -89,6 +102,12 @@ pub struct WorldPlanner {
     resolution_m: f64,
     goal_m: [f64; 2],
     dstar: DStarLite,
+    /// Costs as the costmap gave them, before inflation.
+    base: Vec<f32>,
+    /// Per cell: lethal base cells within the inflation radius.
+    lethal_near: Vec<u16>,
+    /// Cell offsets within the inflation radius (the cell itself included).
+    disk: Vec<(i64, i64)>,
 }
 
 impl WorldPlanner {
@@ -126,11 +145,21 @@ impl WorldPlanner {
             to_cell(goal_m),
             cfg.min_cost_s_per_m,
         );
+        let k = (cfg.inflation_radius_m / r).floor() as i64;
+        let disk = (-k..=k)
+            .flat_map(|dy| (-k..=k).map(move |dx| (dx, dy)))
+            .filter(|&(dx, dy)| {
+                ((dx * dx + dy * dy) as f64).sqrt() * r <= cfg.inflation_radius_m + 1e-9
+            })
+            .collect();
         Self {
             origin_m,
             resolution_m: r,
             goal_m,
             dstar,
+            base: vec![cfg.unknown_cost_s_per_m; w * h],
+            lethal_near: vec![0; w * h],
+            disk,
         }
     }
 
@@ -156,14 +185,43 @@ impl WorldPlanner {
     /// Copies a costmap message into the grid; returns how many cells changed.
     /// NaN cells (never observed) are left as they are.
     pub fn apply_costmap(&mut self, header: &CostmapHeader, cells: &[CostCell]) -> usize {
-        let mut changed = 0;
+        let (w, h) = (self.dstar.grid().width, self.dstar.grid().height);
+        let lethal = |c: f32| c.is_infinite();
+        let mut touched = Vec::new();
         for (k, c) in cells.iter().enumerate().take(header.cell_count()) {
             if c.cost_s_per_m.is_nan() {
                 continue;
             }
-            if let Some((x, y)) = self.cell(header.cell_centre_m(k)) {
-                changed += self.dstar.set_cost(x, y, c.cost_s_per_m) as usize;
+            let Some((x, y)) = self.cell(header.cell_centre_m(k)) else {
+                continue;
+            };
+            let i = y * w + x;
+            let old = std::mem::replace(&mut self.base[i], c.cost_s_per_m);
+            touched.push((x, y));
+            if lethal(old) != lethal(c.cost_s_per_m) {
+                for &(dx, dy) in &self.disk {
+                    let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+                    if nx >= 0 && ny >= 0 && (nx as usize) < w && (ny as usize) < h {
+                        let j = ny as usize * w + nx as usize;
+                        if lethal(c.cost_s_per_m) {
+                            self.lethal_near[j] += 1;
+                        } else {
+                            self.lethal_near[j] -= 1;
+                        }
+                        touched.push((nx as usize, ny as usize));
+                    }
+                }
             }
+        }
+        let mut changed = 0;
+        for (x, y) in touched {
+            let i = y * w + x;
+            let effective = if self.lethal_near[i] > 0 {
+                f32::INFINITY
+            } else {
+                self.base[i]
+            };
+            changed += self.dstar.set_cost(x, y, effective) as usize;
         }
         changed
     }
@@ -205,6 +263,7 @@ mod tests {
     fn a_wall_in_a_costmap_message_bends_the_path() {
         let cfg = WorldPlannerConfig {
             margin_m: 10.0,
+            inflation_radius_m: 0.0,
             ..Default::default()
         };
         let mut p = WorldPlanner::new([0.0, 0.0], [20.0, 0.0], &cfg);
@@ -238,5 +297,45 @@ mod tests {
             p.plan([500.0, 0.0]),
             Err(PlanError::OutsideGrid(500.0, 0.0))
         );
+    }
+
+    #[test]
+    fn inflation_keeps_the_path_a_radius_away_and_clears_with_the_obstacle() {
+        let cfg = WorldPlannerConfig {
+            margin_m: 10.0,
+            inflation_radius_m: 1.5,
+            ..Default::default()
+        };
+        let mut p = WorldPlanner::new([0.0, 0.0], [20.0, 0.0], &cfg);
+        // One rock at (10, 0), as a 1x1 costmap.
+        let header = CostmapHeader {
+            width: 1,
+            height: 1,
+            resolution_m: 1.0,
+            x_min_m: 10.0,
+            y_max_m: 0.0,
+            ..Default::default()
+        };
+        let cell = |c: f32| {
+            [CostCell {
+                cost_s_per_m: c,
+                variance: 0.0,
+            }]
+        };
+        p.apply_costmap(&header, &cell(f32::INFINITY));
+        let (path, _) = p.plan([0.0, 0.0]).unwrap();
+        let clearance = path
+            .iter()
+            .map(|q| (q[0] - 10.0).hypot(q[1]))
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            clearance > 1.5,
+            "passes {clearance} m from the rock: {path:?}"
+        );
+        // The rock turns out to be a shadow: the inflated cells clear too.
+        p.apply_costmap(&header, &cell(1.0));
+        let (path, cost) = p.plan([0.0, 0.0]).unwrap();
+        assert!(path.iter().all(|q| q[1] == 0.0), "straight again: {path:?}");
+        assert!((cost - 20.0).abs() < 1e-9);
     }
 }

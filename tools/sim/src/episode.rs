@@ -173,6 +173,29 @@ mod tests {
     use crate::scenario::scenario;
 
     #[test]
+    fn the_same_seed_and_commands_drive_the_same_track() {
+        let drive = || {
+            let s = scenario("obstacle-field-3", 9).unwrap();
+            let mut e = Episode::new(
+                s,
+                EpisodeConfig {
+                    max_time_s: 30.0,
+                    ..Default::default()
+                },
+            );
+            let mut k = 0u32;
+            while e.step((1.5, 0.6 * ((k as f64) * 0.05).sin()), 0.1) == Outcome::Driving {
+                k += 1;
+            }
+            (e.track.clone(), e.summary())
+        };
+        let (a, b) = (drive(), drive());
+        assert_eq!(a.0, b.0);
+        assert_eq!(a.1, b.1);
+        assert!(a.0.len() > 20);
+    }
+
+    #[test]
     fn a_straight_drive_reaches_an_open_goal_and_a_blocked_one_counts_interventions() {
         // Straight into bug-trap's wall (34 m ahead, reached after ~18 s):
         // the 10 s windows from 20 s and 30 s show no progress.

@@ -28,6 +28,7 @@ pub mod episode;
 pub mod render;
 pub mod rng;
 pub mod robot;
+pub mod run;
 pub mod scenario;
 pub mod sensor;
 pub mod world;

@@ -3,17 +3,14 @@
 //! ```text
 //! farsight-sim render --scenario bug-trap --out out/sim   # one RGB/class/depth view as PNGs, and the map
 //! farsight-sim bench                                      # renderer frames/s at 640x360, one core
+//! farsight-sim run --scenario bug-trap                    # join the stage graph as the robot
 //! ```
-//!
-//! Joining the stage graph (frames, pose, local costmap and goal out,
-//! velocity commands in, on a lock-step or real-time clock) comes with the
-//! closed-loop demo.
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
-use farsight_interfaces::camera::{Camera, CameraModel, Mount};
 use farsight_interfaces::msg::{ImageHeader, PixelEncoding, Stamp};
 use farsight_sim::render::{Frame, Renderer, PALETTE};
+use farsight_sim::run::{front_camera, RunArgs};
 use farsight_sim::scenario::scenario;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -44,29 +41,13 @@ enum Command {
         #[arg(long, default_value = "out/sim")]
         out: PathBuf,
     },
+    /// Join the stage graph as the robot and drive the scenario.
+    Run(RunArgs),
     /// Renderer frames per second at 640x360 on one core, per scenario.
     Bench {
         #[arg(long, default_value_t = 60)]
         frames: usize,
     },
-}
-
-/// The default simulated camera: 90 degree pinhole, 1 m up, level.
-fn front_camera(width: u32, height: u32) -> Camera {
-    let f = width as f64 / 2.0;
-    Camera::new(
-        0,
-        "front",
-        CameraModel::pinhole(
-            width,
-            height,
-            f,
-            f,
-            (width as f64 - 1.0) / 2.0,
-            (height as f64 - 1.0) / 2.0,
-        ),
-        Mount::from_xyz_rpy_deg([0.0, 0.0, 1.0], [0.0; 3]),
-    )
 }
 
 fn write_png(
@@ -83,6 +64,9 @@ fn write_png(
 
 fn main() -> Result<()> {
     match Cli::parse().command {
+        Command::Run(a) => {
+            farsight_sim::run::run(a)?;
+        }
         Command::Render {
             scenario: name,
             seed,

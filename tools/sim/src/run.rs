@@ -1,0 +1,253 @@
+//! `farsight-sim run`: the simulator as a robot in the stage graph. Each
+//! frame it publishes the camera image (and depth and camera model), the
+//! pose, the near-field costmap (`costmap/local`) and the goal, then takes the
+//! velocity command the graph answers with and drives the robot for one frame
+//! period of simulated time.
+//!
+//! With `--clock lockstep` (the default) the next frame waits for a command
+//! stamped with the current frame, so a run is as fast as the graph and the
+//! same for a seed whatever the machine's speed; `--clock realtime` runs at
+//! the frame rate on the wall clock and takes whatever command is newest.
+//! `--oracle` also publishes the class image as the perception output (the
+//! navigability of road, trail, grass and field), standing in for the
+//! inference stage; it is a named mode, never the default.
+
+use crate::episode::{Episode, EpisodeConfig, Outcome, Summary};
+use crate::render::{Frame, Renderer};
+use crate::scenario::scenario;
+use crate::sensor::NearFieldSensor;
+use crate::world::class;
+use anyhow::{Context, Result};
+use farsight_interfaces::camera::{Camera, CameraModel, Mount};
+use farsight_interfaces::msg::{
+    GoalKind, ImageHeader, NavGoal, PixelEncoding, Pose, Stamp, VelocityCommand,
+};
+use farsight_interfaces::topics;
+use farsight_interfaces::transport::ipc::Bus;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ClockMode {
+    Lockstep,
+    Realtime,
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct RunArgs {
+    #[arg(long, default_value = "bug-trap")]
+    pub scenario: String,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    #[arg(long, value_enum, default_value = "lockstep")]
+    pub clock: ClockMode,
+    /// Camera frames (and control steps) per second of simulated time.
+    #[arg(long, default_value_t = 10.0)]
+    pub rate_hz: f64,
+    #[arg(long, default_value_t = 300.0)]
+    pub max_time_s: f64,
+    #[arg(long, default_value_t = 640)]
+    pub width: u32,
+    #[arg(long, default_value_t = 360)]
+    pub height: u32,
+    /// Publish the rendered class image as perception/front/navigability.
+    #[arg(long)]
+    pub oracle: bool,
+    /// Lock-step: how long to wait for the graph's command before driving
+    /// the frame with none (counted as a late command). A graph that has
+    /// stopped answering (a stage down, no path) then costs this per frame.
+    #[arg(long, default_value_t = 0.5)]
+    pub command_timeout_s: f64,
+    #[arg(long, default_value = "out/sim")]
+    pub out: PathBuf,
+}
+
+/// The default simulated camera: 90 degree pinhole, 1 m up, level.
+pub fn front_camera(width: u32, height: u32) -> Camera {
+    let f = width as f64 / 2.0;
+    Camera::new(
+        0,
+        "front",
+        CameraModel::pinhole(
+            width,
+            height,
+            f,
+            f,
+            (width as f64 - 1.0) / 2.0,
+            (height as f64 - 1.0) / 2.0,
+        ),
+        Mount::from_xyz_rpy_deg([0.0, 0.0, 1.0], [0.0; 3]),
+    )
+}
+
+/// Classes a ground robot may drive on (the oracle's navigability).
+pub fn navigable_class(c: u8) -> bool {
+    matches!(c, class::ROAD | class::TRAIL | class::GRASS | class::FIELD)
+}
+
+pub fn run(a: RunArgs) -> Result<Summary> {
+    let s = scenario(&a.scenario, a.seed)?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let cam = front_camera(a.width, a.height);
+    let renderer = Renderer::new(&cam, 150.0);
+    let sensor = NearFieldSensor::default();
+    let (w, h) = (a.width as usize, a.height as usize);
+    let bus = Bus::open("sim")?;
+    let images = bus.slice_publisher(&topics::camera_image("front"), w * h * 3)?;
+    let depths = bus.slice_publisher(&topics::depth("front"), w * h * 4)?;
+    let infos = bus.publisher(&topics::camera_info("front"))?;
+    let poses = bus.publisher(&topics::pose())?;
+    let goals = bus.publisher(&topics::goal())?;
+    let side = (2.0 * sensor.range_m + 1.0) as usize;
+    let locals = bus.slice_publisher(&topics::costmap("local"), side * side)?;
+    let oracle = if a.oracle {
+        Some(bus.slice_publisher(&topics::navigability("front"), w * h)?)
+    } else {
+        None
+    };
+    let commands = bus.subscriber(&topics::velocity_command())?;
+    let goal = NavGoal {
+        kind: GoalKind::LOCAL,
+        x_m: s.goal[0],
+        y_m: s.goal[1],
+        tolerance_m: 2.0,
+        ..Default::default()
+    };
+    goals.publish(&goal)?;
+    println!("farsight-sim ready");
+    eprintln!(
+        "{}: start ({:.0}, {:.0}), goal ({:.0}, {:.0}), {:.0} m away; clock {:?}",
+        s.name,
+        s.start[0],
+        s.start[1],
+        s.goal[0],
+        s.goal[1],
+        (s.goal[0] - s.start[0]).hypot(s.goal[1] - s.start[1]),
+        a.clock
+    );
+
+    let cfg = EpisodeConfig {
+        max_time_s: a.max_time_s,
+        ..Default::default()
+    };
+    let mut episode = Episode::new(s, cfg);
+    let dt = 1.0 / a.rate_hz;
+    let mut frame = Frame::default();
+    let mut late = 0u32;
+    let wall_start = Instant::now();
+    for k in 1u64.. {
+        let r = episode.robot;
+        let stamp = Stamp::new(k, (episode.time_s * 1e9) as u64);
+        renderer.render(&episode.scenario.world, r.pose(), &mut frame);
+        infos.publish(&cam.to_info(stamp))?;
+        poses.publish(&Pose {
+            stamp,
+            position_m: [r.x_m, r.y_m, 0.0],
+            yaw_rad: r.yaw_rad,
+            linear_mps: r.linear_mps as f32,
+            angular_radps: r.angular_radps as f32,
+            ..Default::default()
+        })?;
+        let (lh, lc) = sensor.observe(&episode.scenario.world, r.x_m, r.y_m, stamp);
+        locals.publish_copy(lh, &lc)?;
+        depths.publish_copy(
+            ImageHeader::packed(stamp, 0, a.width, a.height, PixelEncoding::F32),
+            &frame
+                .depth_m
+                .iter()
+                .flat_map(|d| d.to_le_bytes())
+                .collect::<Vec<u8>>(),
+        )?;
+        if let Some(o) = &oracle {
+            let nav: Vec<u8> = frame
+                .class_ids
+                .iter()
+                .map(|&c| if navigable_class(c) { 255 } else { 0 })
+                .collect();
+            o.publish_copy(
+                ImageHeader::packed(stamp, 0, a.width, a.height, PixelEncoding::MONO8),
+                &nav,
+            )?;
+        }
+        images.publish_copy(
+            ImageHeader::packed(stamp, 0, a.width, a.height, PixelEncoding::RGB8),
+            &frame.rgb,
+        )?;
+        goals.deliver_history()?;
+
+        let command = match a.clock {
+            ClockMode::Lockstep => {
+                let end = Instant::now() + Duration::from_secs_f64(a.command_timeout_s);
+                loop {
+                    match commands.latest()? {
+                        Some(c) if c.stamp.frame_seq >= k => break Some(c),
+                        _ if Instant::now() >= end => break None,
+                        _ => std::thread::sleep(Duration::from_micros(500)),
+                    }
+                }
+            }
+            ClockMode::Realtime => {
+                let due = wall_start + Duration::from_secs_f64(k as f64 * dt);
+                std::thread::sleep(due.saturating_duration_since(Instant::now()));
+                commands.latest()?
+            }
+        };
+        let (v, w_) = match command {
+            Some(VelocityCommand {
+                linear_mps,
+                angular_radps,
+                ..
+            }) if linear_mps.is_finite() && angular_radps.is_finite() => {
+                (linear_mps as f64, angular_radps as f64)
+            }
+            _ => {
+                late += 1;
+                (0.0, 0.0)
+            }
+        };
+        let outcome = episode.step((v, w_), dt);
+        if k % (5.0 * a.rate_hz).max(1.0) as u64 == 0 {
+            eprintln!(
+                "t {:6.1} s  goal {:6.1} m  v {:4.2} m/s  collisions {}  interventions {}  (wall {:.0} s)",
+                episode.time_s,
+                episode.goal_distance_m(),
+                episode.robot.linear_mps,
+                episode.robot.collisions,
+                episode.interventions,
+                wall_start.elapsed().as_secs_f64()
+            );
+        }
+        if outcome != Outcome::Driving {
+            break;
+        }
+    }
+    let summary = episode.summary();
+    let (mw, mh, rgb) = episode.map_rgb();
+    let header = ImageHeader::packed(
+        Stamp::default(),
+        0,
+        mw as u32,
+        mh as u32,
+        PixelEncoding::RGB8,
+    );
+    let map_path = a.out.join(format!("{}-map.png", summary.scenario));
+    std::fs::write(&map_path, farsight_imaging::encode_png(&header, &rgb)?)
+        .with_context(|| format!("writing {}", map_path.display()))?;
+    let text = format!(
+        "scenario = {:?}\nseed = {}\noutcome = {:?}\ntime_s = {:.1}\ndistance_m = {:.1}\ntraversal_cost_s = {:.1}\ncollisions = {}\ninterventions = {}\nfinal_goal_distance_m = {:.1}\nlate_commands = {}\nwall_s = {:.1}\n",
+        summary.scenario,
+        a.seed,
+        format!("{:?}", summary.outcome).to_lowercase(),
+        summary.time_s,
+        summary.distance_m,
+        summary.traversal_cost_s,
+        summary.collisions,
+        summary.interventions,
+        summary.final_goal_distance_m,
+        late,
+        wall_start.elapsed().as_secs_f64()
+    );
+    std::fs::write(a.out.join("summary.toml"), &text)?;
+    println!("{text}map: {}", map_path.display());
+    Ok(summary)
+}
