@@ -1,5 +1,6 @@
-//! `farsight demo`: runs the graph as separate processes on the real ORFD
-//! off-road frames and watches it the way a laptop would.
+//! `farsight demo --orfd`: runs the graph as separate processes on the real
+//! ORFD off-road frames and watches it the way a laptop would. (Without
+//! `--orfd`, the demo is the closed loop in simulation: [`crate::demo_sim`].)
 //!
 //! camera-ingest (folder of real frames) -> inference (TwinLiteNet) ->
 //! subgoal-selection (POVNav) -> velocity-servoing, all in iceoryx2 shared
@@ -22,9 +23,26 @@ use std::time::{Duration, Instant};
 
 #[derive(Args)]
 pub struct DemoArgs {
-    /// Output folder (frames, configs, summary).
+    /// Output folder (configs, logs, map PNG, summary).
     #[arg(long, default_value = "out/demo")]
     out: PathBuf,
+    /// Simulator scenario to drive (see farsight-sim's scenario list).
+    #[arg(long, default_value = "bug-trap")]
+    scenario: String,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// How the graph navigates in simulation.
+    #[arg(long, value_enum, default_value = "dstar-lite")]
+    method: crate::demo_sim::Method,
+    /// Named mode: the simulator's class image stands in for the inference stage.
+    #[arg(long)]
+    oracle: bool,
+    /// Simulated seconds before the run counts as failed.
+    #[arg(long, default_value_t = 240.0)]
+    max_time_s: f64,
+    /// Instead of the simulator: the real ORFD frames through TwinLiteNet and POVNav.
+    #[arg(long)]
+    orfd: bool,
     /// Folder of frames to play.
     #[arg(long, default_value = "../shared/data/orfd/image_data")]
     frames: PathBuf,
@@ -36,7 +54,7 @@ pub struct DemoArgs {
     rate_hz: f64,
 }
 
-struct Stage(Child);
+pub struct Stage(Child);
 
 impl Drop for Stage {
     fn drop(&mut self) {
@@ -69,7 +87,7 @@ fn sibling(name: &str) -> Result<PathBuf> {
 }
 
 /// Starts a stage and waits for its `<name> ready` line.
-fn start_ready(name: &'static str, config: &Path, prefix: &str, out: &Path) -> Result<Stage> {
+pub fn start_ready(name: &'static str, config: &Path, prefix: &str, out: &Path) -> Result<Stage> {
     let log = out.join(format!("{name}.log"));
     let mut stage = start(name, config, prefix, &log)?;
     let mut ready = String::new();
@@ -95,6 +113,16 @@ fn start(name: &'static str, config: &Path, prefix: &str, log: &Path) -> Result<
 }
 
 pub fn run(a: DemoArgs) -> Result<()> {
+    if !a.orfd {
+        return crate::demo_sim::run(crate::demo_sim::SimDemo {
+            out: a.out,
+            scenario: a.scenario,
+            seed: a.seed,
+            method: a.method,
+            oracle: a.oracle,
+            max_time_s: a.max_time_s,
+        });
+    }
     let frames = std::fs::canonicalize(&a.frames).with_context(|| {
         format!(
             "frames folder {} (run from the repository root, next to ../shared)",

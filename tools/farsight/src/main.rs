@@ -4,7 +4,7 @@
 //! farsight probe publish   --width 1440 --height 1080 --rate-hz 30   # test frames into shared memory
 //! farsight probe subscribe --frames 90                              # receive and check every byte
 //! farsight bench transport                                           # iceoryx2 vs zenoh vs Unix socket
-//! farsight demo                                                      # the graph on real frames
+//! farsight demo                                                      # closed loop in the simulator (bug-trap); --orfd: real frames
 //! farsight infer --model-config deploy/models/twinlitenet.toml IMAGES --out out/infer
 //! farsight hip-library poses.csv --k 200 --out hip-library.toml      # HIP trajectory library
 //! ```
@@ -14,6 +14,7 @@ mod bench_inference;
 mod bench_navigation;
 mod bench_planning;
 mod demo;
+mod demo_sim;
 mod hip_library;
 mod infer;
 mod probe;
@@ -39,7 +40,7 @@ enum Command {
     /// Benchmarks that print a table.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
-    /// Run the graph on the real ORFD frames and watch it over zenoh.
+    /// The closed loop in simulation (default: bug-trap), or with --orfd the graph on the real ORFD frames.
     Demo(demo::DemoArgs),
     /// Run a model on image files offline, as the inference stage would, and write PNGs.
     Infer(infer::InferArgs),

@@ -222,12 +222,19 @@ pub fn run(a: RunArgs) -> Result<Summary> {
         }
     }
     let summary = episode.summary();
-    let (mw, mh, rgb) = episode.map_rgb();
+    let (mw, mh, cells) = episode.map_rgb();
+    // Small scenario maps are scaled up (whole pixels per cell) to be readable.
+    let k = (800 / mw.max(mh)).clamp(1, 8);
+    let (pw, ph) = (mw * k, mh * k);
+    let rgb: Vec<u8> = (0..ph)
+        .flat_map(|y| (0..pw).map(move |x| (y / k) * mw + x / k))
+        .flat_map(|i| [cells[i * 3], cells[i * 3 + 1], cells[i * 3 + 2]])
+        .collect();
     let header = ImageHeader::packed(
         Stamp::default(),
         0,
-        mw as u32,
-        mh as u32,
+        pw as u32,
+        ph as u32,
         PixelEncoding::RGB8,
     );
     let map_path = a.out.join(format!("{}-map.png", summary.scenario));

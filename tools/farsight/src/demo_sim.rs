@@ -1,0 +1,143 @@
+//! `farsight demo` (the default): the closed loop in simulation. Every stage
+//! runs as its own process with `farsight-sim run` as the robot on a named
+//! scenario (default `bug-trap`), until the robot reaches the goal or the
+//! time runs out; the output folder gets each stage's config and log, the
+//! map with the driven track (PNG) and `summary.toml`.
+//!
+//! Methods:
+//! - `dstar_lite` (default): near-field sensing -> costmap-fusion -> D* Lite
+//!   -> carrot tracking (FITAM's "no far-field" baseline);
+//! - `povnav`: the inference stage's HSV backend on the rendered RGB ->
+//!   POVNav -> the POVNav servo law; `--oracle` swaps the inference stage
+//!   for the simulator's class image.
+//!
+//! LRN needs an affordance model, which the training issue produces.
+
+use crate::demo::{start_ready, Stage};
+use anyhow::{bail, Context, Result};
+use clap::ValueEnum;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Method {
+    DstarLite,
+    Povnav,
+}
+
+pub struct SimDemo {
+    pub out: PathBuf,
+    pub scenario: String,
+    pub seed: u64,
+    pub method: Method,
+    pub oracle: bool,
+    pub max_time_s: f64,
+}
+
+/// HSV ranges of the simulator's navigable ground colours (road, trail,
+/// grass, field), shaded and hazed as the renderer draws them.
+const HSV_GROUND: &str = "\
+[[hsv.ranges]]          # grass, field: yellow-green to green\n\
+hue_deg = [55.0, 115.0]\nsaturation = [0.35, 0.75]\nvalue = [0.35, 0.85]\n\
+[[hsv.ranges]]          # road, trail: tan, low saturation\n\
+hue_deg = [25.0, 45.0]\nsaturation = [0.1, 0.45]\nvalue = [0.4, 0.8]\n";
+
+fn write(out: &Path, name: &str, text: &str) -> Result<PathBuf> {
+    let p = out.join(name);
+    std::fs::write(&p, text).with_context(|| format!("writing {}", p.display()))?;
+    Ok(p)
+}
+
+pub fn run(d: SimDemo) -> Result<()> {
+    std::fs::create_dir_all(&d.out)?;
+    let out = std::fs::canonicalize(&d.out)?;
+    let prefix = format!("simdemo{}_", std::process::id());
+    let mut stages: Vec<Stage> = Vec::new();
+    match d.method {
+        Method::DstarLite => {
+            let fusion = write(
+                &out,
+                "costmap-fusion.toml",
+                "width_cells = 121\nheight_cells = 121\npublish_rate_hz = 200.0\n",
+            )?;
+            let planner = write(
+                &out,
+                "subgoal-selection.toml",
+                "method = \"dstar_lite\"\nsubgoal_distance_m = 5.0\nreplan_rate_hz = 20.0\n[planner]\nmargin_m = 30.0\n",
+            )?;
+            let servo = write(
+                &out,
+                "velocity-servoing.toml",
+                "output_rate_hz = 200.0\nsubgoal_deadline_s = 2.0\ntrack = \"path\"\n[servo]\ngoal_radius_m = 2.0\nmax_linear_mps = 1.5\n",
+            )?;
+            stages.push(start_ready("costmap-fusion", &fusion, &prefix, &out)?);
+            stages.push(start_ready("subgoal-selection", &planner, &prefix, &out)?);
+            stages.push(start_ready("velocity-servoing", &servo, &prefix, &out)?);
+        }
+        Method::Povnav => {
+            if !d.oracle {
+                let inference = write(
+                    &out,
+                    "inference.toml",
+                    &format!("camera = \"front\"\nbackend = \"hsv\"\n{HSV_GROUND}"),
+                )?;
+                stages.push(start_ready("inference", &inference, &prefix, &out)?);
+            }
+            let planner = write(
+                &out,
+                "subgoal-selection.toml",
+                "method = \"povnav\"\ncamera = \"front\"\n",
+            )?;
+            let servo = write(
+                &out,
+                "velocity-servoing.toml",
+                "output_rate_hz = 200.0\nsubgoal_deadline_s = 2.0\n[servo]\ngoal_radius_m = 2.0\nmax_linear_mps = 1.0\n",
+            )?;
+            stages.push(start_ready("subgoal-selection", &planner, &prefix, &out)?);
+            stages.push(start_ready("velocity-servoing", &servo, &prefix, &out)?);
+        }
+    }
+    eprintln!(
+        "stages up ({}); driving {} with {:?}{}...",
+        stages.len(),
+        d.scenario,
+        d.method,
+        if d.oracle { " (oracle perception)" } else { "" }
+    );
+    let sim = std::env::current_exe()?.with_file_name("farsight-sim");
+    if !sim.exists() {
+        bail!(
+            "{} not found: build the workspace first (cargo xtask demo does)",
+            sim.display()
+        );
+    }
+    let mut cmd = Command::new(sim);
+    cmd.args([
+        "run",
+        "--scenario",
+        &d.scenario,
+        "--seed",
+        &d.seed.to_string(),
+    ])
+    .args(["--max-time-s", &d.max_time_s.to_string(), "--out"])
+    .arg(&out)
+    .env("FARSIGHT_IPC_PREFIX", &prefix)
+    .stdin(Stdio::null());
+    if d.oracle {
+        cmd.arg("--oracle");
+    }
+    let status = cmd.status().context("running farsight-sim")?;
+    drop(stages);
+    if !status.success() {
+        bail!(
+            "farsight-sim failed ({status}); stage logs are in {}",
+            out.display()
+        );
+    }
+    println!(
+        "configs, logs, summary.toml and {}-map.png are in {}",
+        d.scenario,
+        out.display()
+    );
+    Ok(())
+}
