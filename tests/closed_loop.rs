@@ -1,49 +1,12 @@
-//! The simulator in the loop: `farsight-sim run` joins the graph as the
-//! robot (frames, pose, near-field costmap, goal out; velocity commands in)
-//! with costmap-fusion, D* Lite in subgoal-selection and the servo tracking
-//! the planned path, every one its own process on the lock-step clock.
-//! Near-field sensing alone (the "no far-field" baseline) is enough to get
-//! out of LRN's bug trap, since D* Lite replans as the walls come into view.
+//! The simulator in the loop, through the demo command itself: `farsight
+//! demo` starts costmap-fusion, D* Lite in subgoal-selection and the servo
+//! tracking the planned path, each its own process, with `farsight-sim run`
+//! as the robot on the lock-step clock. Near-field sensing alone (the "no
+//! far-field" baseline) gets out of LRN's bug trap, since D* Lite replans
+//! as the walls come into view.
 
 use farsight_tests::{bin, Namespace, Proc};
 use std::time::Duration;
-
-fn drive_bug_trap(ns: &Namespace, out: &str) -> String {
-    let fusion = ns.write(
-        "costmap-fusion.toml",
-        "width_cells = 121\nheight_cells = 121\npublish_rate_hz = 200.0\n",
-    );
-    let planner = ns.write(
-        "subgoal-selection.toml",
-        "method = \"dstar_lite\"\nsubgoal_distance_m = 5.0\nreplan_rate_hz = 20.0\n[planner]\nmargin_m = 30.0\n",
-    );
-    let servo = ns.write(
-        "velocity-servoing.toml",
-        "output_rate_hz = 200.0\nsubgoal_deadline_s = 2.0\ntrack = \"path\"\n[servo]\ngoal_radius_m = 2.0\nmax_linear_mps = 1.5\n",
-    );
-    let _f = ns.start_stage("farsight-costmap-fusion", "costmap-fusion", &fusion);
-    let _p = ns.start_stage("farsight-subgoal-selection", "subgoal-selection", &planner);
-    let _s = ns.start_stage("farsight-velocity-servoing", "velocity-servoing", &servo);
-    // The sim creates its output folder, next to the configs.
-    let out_dir = fusion.with_file_name(out);
-    let mut sim = Proc::start(
-        "farsight-sim",
-        &[
-            "run",
-            "--scenario",
-            "bug-trap",
-            "--max-time-s",
-            "200",
-            "--out",
-            out_dir.to_str().unwrap(),
-        ],
-        ns,
-    );
-    let code = sim.wait_exit(Duration::from_secs(240));
-    assert_eq!(code, Some(0), "farsight-sim:\n{}", sim.stderr_so_far());
-    assert!(out_dir.join("bug-trap-map.png").exists());
-    std::fs::read_to_string(out_dir.join("summary.toml")).unwrap()
-}
 
 fn field<'a>(summary: &'a str, key: &str) -> &'a str {
     summary
@@ -53,10 +16,19 @@ fn field<'a>(summary: &'a str, key: &str) -> &'a str {
 }
 
 #[test]
-fn dstar_lite_on_near_field_sensing_escapes_the_bug_trap() {
+fn the_demo_escapes_the_bug_trap_with_dstar_lite_on_near_field_sensing() {
     assert!(bin("farsight-sim").exists(), "build the workspace first");
     let ns = Namespace::new("bugtrap");
-    let summary = drive_bug_trap(&ns, "run1");
+    let out = ns.write("placeholder", "").with_file_name("demo");
+    let mut demo = Proc::start("farsight", &["demo", "--out", out.to_str().unwrap()], &ns);
+    let code = demo.wait_exit(Duration::from_secs(240));
+    assert_eq!(code, Some(0), "farsight demo:\n{}", demo.stderr_so_far());
+    assert!(out.join("bug-trap-map.png").exists());
+    assert!(
+        out.join("subgoal-selection.log").exists(),
+        "stage logs are kept"
+    );
+    let summary = std::fs::read_to_string(out.join("summary.toml")).unwrap();
     eprintln!("{summary}");
     assert_eq!(field(&summary, "outcome"), "\"reached\"", "{summary}");
     assert_eq!(field(&summary, "collisions"), "0", "{summary}");
