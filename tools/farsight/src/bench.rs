@@ -33,6 +33,8 @@ pub enum BenchCommand {
     Navigation(NavigationArgs),
     /// FITAM map updates and D* Lite: first plan vs repair vs A* from scratch.
     Planning(PlanningArgs),
+    /// The navigation benchmark: seeded trials per scenario and method in the simulator.
+    Nav(NavArgs),
     /// (internal) the receiving side of one cell of the transport benchmark.
     #[command(hide = true)]
     TransportReceiver(ReceiverArgs),
@@ -115,8 +117,24 @@ pub struct PlanningArgs {
     pub runs: usize,
 }
 
+#[derive(Args)]
+pub struct NavArgs {
+    /// Trials (seeds 1..=N) per scenario and method.
+    #[arg(long, default_value_t = 3)]
+    pub trials: usize,
+    #[arg(long, value_delimiter = ',', default_values_t = ["bug-trap".to_string(), "bridge".to_string(), "road-forest".to_string(), "obstacle-field-3".to_string()])]
+    pub scenarios: Vec<String>,
+    /// Methods to run (default: all).
+    #[arg(long, value_delimiter = ',')]
+    pub methods: Vec<String>,
+    /// Simulated seconds per trial (road-forest's forest allows 0.5 m/s).
+    #[arg(long, default_value_t = 600.0)]
+    pub max_time_s: f64,
+}
+
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
+        BenchCommand::Nav(a) => crate::bench_nav::run(a),
         BenchCommand::Planning(a) => crate::bench_planning::run(a),
         BenchCommand::Navigation(a) => crate::bench_navigation::run(a),
         BenchCommand::Transport(a) => transport(a),

@@ -11,6 +11,7 @@
 
 mod bench;
 mod bench_inference;
+mod bench_nav;
 mod bench_navigation;
 mod bench_planning;
 mod demo;

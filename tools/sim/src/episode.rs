@@ -1,8 +1,9 @@
 //! One drive through a scenario: the robot, its metrics and its track, as
 //! the demo and the navigation benchmark score them: reached (within the
 //! goal radius), time, distance, traversal cost, collisions and
-//! interventions (stuck: less than 1 m of progress toward the goal in 10 s,
-//! as the benchmark issue defines; each one is counted once per 10 s).
+//! interventions (stuck: less than 1 m from where it was 10 s earlier, in
+//! the spirit of HIP's "trapped" rule; a detour away from the goal is not
+//! being stuck; counted once per 10 s window).
 
 use crate::render::PALETTE;
 use crate::robot::{Robot, RobotLimits};
@@ -54,14 +55,14 @@ pub struct Episode {
     pub time_s: f64,
     pub track: Vec<[f64; 2]>,
     pub interventions: u32,
-    window_start: (f64, f64),
+    /// Time and position at the start of the current stuck window.
+    window_start: (f64, [f64; 2]),
     outcome: Outcome,
 }
 
 impl Episode {
     pub fn new(scenario: Scenario, config: EpisodeConfig) -> Self {
         let robot = Robot::at(scenario.start);
-        let d = goal_distance(&robot, &scenario);
         Self {
             track: vec![[robot.x_m, robot.y_m]],
             scenario,
@@ -69,7 +70,7 @@ impl Episode {
             robot,
             time_s: 0.0,
             interventions: 0,
-            window_start: (0.0, d),
+            window_start: (0.0, [robot.x_m, robot.y_m]),
             outcome: Outcome::Driving,
         }
     }
@@ -95,11 +96,13 @@ impl Episode {
             self.track.push([self.robot.x_m, self.robot.y_m]);
         }
         let d = self.goal_distance_m();
+        let here = [self.robot.x_m, self.robot.y_m];
         if self.time_s - self.window_start.0 >= self.config.stuck_window_s {
-            if self.window_start.1 - d < 1.0 {
+            let moved = (here[0] - self.window_start.1[0]).hypot(here[1] - self.window_start.1[1]);
+            if moved < 1.0 {
                 self.interventions += 1;
             }
-            self.window_start = (self.time_s, d);
+            self.window_start = (self.time_s, here);
         }
         self.outcome = if d <= self.config.goal_radius_m {
             Outcome::Reached

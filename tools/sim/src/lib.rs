@@ -25,6 +25,7 @@
 //! ```
 
 pub mod episode;
+pub mod labels;
 pub mod render;
 pub mod rng;
 pub mod robot;

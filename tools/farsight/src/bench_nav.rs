@@ -1,0 +1,282 @@
+//! `farsight bench nav`: the navigation benchmark. N seeded trials per
+//! scenario for each method and its baseline, side by side in one run, with
+//! the stages' library code in this process (the process graph runs the same
+//! code; `tests/closed_loop.rs` drives it through real processes).
+//!
+//! Methods:
+//! - `goal_heuristic`: steer straight at the goal (LRN's baseline: its head
+//!   with uniform bins);
+//! - `dstar_no_far_field`: near-field sensing -> fused map -> D* Lite -> carrot
+//!   (FITAM's baseline);
+//! - `fitam_gt`: the same plus far-field observations with ground-truth labels
+//!   (FITAM's "GT labels" row);
+//! - `povnav_oracle`: POVNav on the rendered class image (oracle perception)
+//!   -> the POVNav servo law.
+//!
+//! Metrics per trial come from `farsight_sim::episode`; the table gives the
+//! success rate with a 95% Wilson interval and means with 95% normal
+//! intervals (path length, time and traversal cost over the successful
+//! trials; interventions over all).
+
+use crate::bench::NavArgs;
+use anyhow::Result;
+use farsight_costmap_fusion::kalman::FarFieldConfig;
+use farsight_costmap_fusion::map::FusionMap;
+use farsight_costmap_fusion::swath::PolarGeometry;
+use farsight_interfaces::msg::{CostmapLayer, Pose, Stamp};
+use farsight_sim::episode::{Episode, EpisodeConfig, Outcome, Summary};
+use farsight_sim::labels::{ground_truth_bins, LabelRules};
+use farsight_sim::render::{Frame, Renderer};
+use farsight_sim::run::{front_camera, navigable_class};
+use farsight_sim::scenario::scenario;
+use farsight_sim::sensor::NearFieldSensor;
+use farsight_subgoal_selection::planner::{WorldPlanner, WorldPlannerConfig};
+use farsight_subgoal_selection::povnav::{plan, safe_half_widths, PovnavConfig};
+use farsight_velocity_servoing::{
+    carrot_command, carrot_point, heading_command, povnav_command, RateLimiter, ServoConfig,
+};
+use std::time::Instant;
+
+pub const METHODS: [&str; 4] = [
+    "goal_heuristic",
+    "dstar_no_far_field",
+    "fitam_gt",
+    "povnav_oracle",
+];
+
+const DT_S: f64 = 0.1;
+
+struct Controller {
+    method: &'static str,
+    servo: ServoConfig,
+    limiter: RateLimiter,
+    fusion: FusionMap,
+    planner: Option<WorldPlanner>,
+    planner_cfg: WorldPlannerConfig,
+    sensor: NearFieldSensor,
+    geometry: PolarGeometry,
+    labels: LabelRules,
+    renderer: Option<(Renderer, Frame, Vec<usize>)>,
+    povnav: PovnavConfig,
+    step: u64,
+}
+
+impl Controller {
+    fn new(method: &'static str) -> Self {
+        let renderer = (method == "povnav_oracle").then(|| {
+            let cam = front_camera(320, 180);
+            let m = &cam.model;
+            let hw = safe_half_widths(180, m.fx, m.fy, m.cy, cam.mount.height_m(), 0.8, 0.2);
+            (Renderer::new(&cam, 150.0), Frame::default(), hw)
+        });
+        Self {
+            method,
+            servo: ServoConfig {
+                max_linear_mps: 1.5,
+                goal_radius_m: 0.0,
+                ..Default::default()
+            },
+            limiter: RateLimiter::default(),
+            fusion: FusionMap::new(201, 201, 1.0, FarFieldConfig::default()),
+            planner: None,
+            planner_cfg: WorldPlannerConfig {
+                margin_m: 100.0,
+                ..Default::default()
+            },
+            sensor: NearFieldSensor::default(),
+            geometry: PolarGeometry::fitam_default(),
+            labels: LabelRules::default(),
+            renderer,
+            povnav: PovnavConfig::default(),
+            step: 0,
+        }
+    }
+
+    fn command(&mut self, e: &Episode) -> (f64, f64) {
+        self.step += 1;
+        let r = e.robot;
+        let pose = Pose {
+            position_m: [r.x_m, r.y_m, 0.0],
+            yaw_rad: r.yaw_rad,
+            ..Default::default()
+        };
+        let goal_robot = pose.to_robot_frame(e.scenario.goal);
+        let goal_bearing = goal_robot[1].atan2(goal_robot[0]);
+        let target = match self.method {
+            "goal_heuristic" => heading_command(goal_bearing, &self.servo),
+            "povnav_oracle" => {
+                let (renderer, frame, hw) = self.renderer.as_mut().expect("built for povnav");
+                renderer.render(&e.scenario.world, r.pose(), frame);
+                let nav: Vec<u8> = frame
+                    .class_ids
+                    .iter()
+                    .map(|&c| if navigable_class(c) { 255 } else { 0 })
+                    .collect();
+                let p = plan(
+                    &nav,
+                    frame.width,
+                    frame.height,
+                    goal_bearing,
+                    hw,
+                    &self.povnav,
+                );
+                povnav_command(p.proximity_px, p.alignment_rad, &self.servo)
+            }
+            _ => {
+                let world = &e.scenario.world;
+                self.fusion.recenter(r.x_m, r.y_m);
+                let (lh, lc) = self.sensor.observe(world, r.x_m, r.y_m, Stamp::default());
+                self.fusion.apply_local_costmap(&lh, &lc);
+                let far = self.method == "fitam_gt";
+                if far && self.step % 10 == 1 {
+                    let bins = ground_truth_bins(world, &self.geometry, r.pose(), &self.labels);
+                    self.fusion
+                        .observe_far_field(&self.geometry, &bins, r.x_m, r.y_m, r.yaw_rad);
+                    self.fusion.add_process_noise();
+                }
+                let cfg = &self.planner_cfg;
+                let planner = self
+                    .planner
+                    .get_or_insert_with(|| WorldPlanner::new([r.x_m, r.y_m], e.scenario.goal, cfg));
+                let (h, cells) = self
+                    .fusion
+                    .export(Stamp::default(), CostmapLayer::FUSED, far);
+                planner.apply_costmap(&h, &cells);
+                match planner.plan([r.x_m, r.y_m]) {
+                    Ok((path, _)) => {
+                        let robot_path: Vec<[f64; 2]> =
+                            path.iter().map(|&q| pose.to_robot_frame(q)).collect();
+                        carrot_point(&robot_path, self.servo.lookahead_m)
+                            .map_or((0.0, 0.0), |c| carrot_command(c, &self.servo))
+                    }
+                    Err(_) => (0.0, 0.0),
+                }
+            }
+        };
+        self.limiter.limit(target, DT_S, &self.servo)
+    }
+}
+
+/// One trial: a method on a scenario and seed, to the goal or the time limit.
+pub fn trial(
+    method: &'static str,
+    scenario_name: &str,
+    seed: u64,
+    max_time_s: f64,
+) -> Result<(Summary, u64)> {
+    let s = scenario(scenario_name, seed)?;
+    let mut e = Episode::new(
+        s,
+        EpisodeConfig {
+            max_time_s,
+            ..Default::default()
+        },
+    );
+    let mut c = Controller::new(method);
+    let mut steps = 0;
+    loop {
+        let cmd = c.command(&e);
+        steps += 1;
+        if e.step(cmd, DT_S) != Outcome::Driving {
+            return Ok((e.summary(), steps));
+        }
+    }
+}
+
+fn wilson(successes: usize, n: usize) -> (f64, f64) {
+    if n == 0 {
+        return (0.0, 0.0);
+    }
+    let (z, n_f) = (1.96f64, n as f64);
+    let p = successes as f64 / n_f;
+    let denom = 1.0 + z * z / n_f;
+    let centre = (p + z * z / (2.0 * n_f)) / denom;
+    let half = z * (p * (1.0 - p) / n_f + z * z / (4.0 * n_f * n_f)).sqrt() / denom;
+    ((centre - half).max(0.0), (centre + half).min(1.0))
+}
+
+fn mean_ci(v: &[f64]) -> String {
+    if v.is_empty() {
+        return "-".into();
+    }
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    if v.len() < 2 {
+        return format!("{mean:.0}");
+    }
+    let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    format!("{mean:.0} ± {:.0}", 1.96 * sd / n.sqrt())
+}
+
+pub fn run(a: NavArgs) -> Result<()> {
+    let methods: Vec<&'static str> = METHODS
+        .iter()
+        .copied()
+        .filter(|m| a.methods.is_empty() || a.methods.iter().any(|x| x == m))
+        .collect();
+    println!(
+        "navigation benchmark: {} seeded trials per cell, up to {:.0} s each, 10 Hz control (one run, this machine):\n",
+        a.trials, a.max_time_s
+    );
+    println!("| scenario | method | success [95% CI] | path m | time s | cost s | interventions |");
+    println!("|---|---|---|---|---|---|---|");
+    let (mut steps, t0) = (0u64, Instant::now());
+    for sc in &a.scenarios {
+        for &m in &methods {
+            let mut runs = Vec::new();
+            for seed in 1..=a.trials as u64 {
+                let (s, n) = trial(m, sc, seed, a.max_time_s)?;
+                eprintln!(
+                    "  {sc} {m} seed {seed}: {:?} after {:.0} s, {:.0} m",
+                    s.outcome, s.time_s, s.distance_m
+                );
+                steps += n;
+                runs.push(s);
+            }
+            let ok: Vec<&Summary> = runs
+                .iter()
+                .filter(|s| s.outcome == Outcome::Reached)
+                .collect();
+            let (lo, hi) = wilson(ok.len(), runs.len());
+            let pick = |f: fn(&Summary) -> f64| ok.iter().map(|s| f(s)).collect::<Vec<_>>();
+            println!(
+                "| {sc} | {m} | {:.0}% [{:.0}, {:.0}] | {} | {} | {} | {} |",
+                100.0 * ok.len() as f64 / runs.len().max(1) as f64,
+                100.0 * lo,
+                100.0 * hi,
+                mean_ci(&pick(|s| s.distance_m)),
+                mean_ci(&pick(|s| s.time_s)),
+                mean_ci(&pick(|s| s.traversal_cost_s)),
+                mean_ci(
+                    &runs
+                        .iter()
+                        .map(|s| s.interventions as f64)
+                        .collect::<Vec<_>>()
+                ),
+            );
+        }
+    }
+    let wall = t0.elapsed().as_secs_f64();
+    println!(
+        "\nsimulation with controllers: {steps} steps in {wall:.1} s ({:.0} steps/s); renderer: see `farsight-sim bench`",
+        steps as f64 / wall
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wilson_interval_by_hand() {
+        let (lo, hi) = wilson(5, 10);
+        assert!(
+            (lo - 0.2366).abs() < 1e-3 && (hi - 0.7634).abs() < 1e-3,
+            "{lo} {hi}"
+        );
+        let (lo, hi) = wilson(0, 5);
+        assert_eq!(lo, 0.0);
+        assert!(hi > 0.4 && hi < 0.5);
+    }
+}
