@@ -4,8 +4,9 @@
 //!   cache (`$FARSIGHT_CACHE`, default `~/.cache/farsight`) and print its path;
 //! - `test`: every check CI runs: fmt, clippy, build, all tests, then one
 //!   summary line;
-//! - `bench transport`: the transport latency table;
-//! - `demo`: build and run the graph on the real frames in `../shared/data/orfd`.
+//! - `bench NAME`: `farsight bench NAME` (transport, navigation, planning, nav, inference);
+//! - `demo`: build and run the closed loop in the simulator (`--orfd`: the graph
+//!   on the real frames in `../shared/data/orfd`).
 //!
 //! Dependency-free on purpose, so it starts in seconds on a fresh clone.
 
@@ -25,7 +26,7 @@ fn main() -> ExitCode {
         Some("demo") => demo(&args[1..]),
         _ => {
             eprintln!(
-                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, clippy, build and every test\n  bench transport   iceoryx2 vs zenoh vs Unix socket latency table\n  demo [--out DIR]  run the graph on the real ORFD frames"
+                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, clippy, build and every test\n  bench NAME        transport | navigation | planning | nav | inference (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames"
             );
             return ExitCode::from(2);
         }
@@ -195,15 +196,20 @@ fn test() -> Result<()> {
 }
 
 fn bench(args: &[String]) -> Result<()> {
+    // Each name is a `farsight bench` subcommand; the rest of the line goes with it.
+    const KNOWN: [&str; 5] = ["transport", "navigation", "planning", "nav", "inference"];
     match args.first().map(String::as_str) {
-        Some("transport") => {
-            run(cargo().args(["build", "--release", "-p", "farsight-cli"]))?;
-            run(Command::new(root().join("target/release/farsight"))
-                .args(["bench", "transport"])
-                .args(&args[1..]))
+        Some(name) if KNOWN.contains(&name) => {
+            let mut cmd = Command::new(root().join("target/release/farsight"));
+            if name == "inference" {
+                cmd.env("ORT_DYLIB_PATH", setup()?);
+            }
+            run(cargo().args(["build", "--release", "--workspace"]))?;
+            run(cmd.current_dir(root()).arg("bench").args(args))
         }
         other => Err(format!(
-            "unknown benchmark {other:?}: try `cargo xtask bench transport`"
+            "unknown benchmark {other:?}: try one of {}",
+            KNOWN.join(", ")
         )),
     }
 }
