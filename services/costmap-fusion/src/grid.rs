@@ -151,16 +151,15 @@ impl<T: Clone> ScrollingGrid<T> {
         )
     }
 
-    /// The cells in exported order (row-major, north up), mapped by `f`.
-    pub fn rows_north_up<U>(&self, mut f: impl FnMut((i64, i64), &T) -> U) -> Vec<U> {
-        let mut out = Vec::with_capacity(self.width * self.height);
-        for i in 0..self.height {
-            for j in 0..self.width {
-                let g = self.global_of_row_col(i, j);
-                out.push(f(g, &self.cells[self.slot(g.0, g.1)]));
-            }
+    /// Writes the cells in exported order (row-major, north up), mapped by
+    /// `f`, into `out` (which holds `width * height` entries; a shorter one
+    /// gets the first rows).
+    pub fn write_rows_north_up<U>(&self, out: &mut [U], mut f: impl FnMut((i64, i64), &T) -> U) {
+        let cells = (0..self.height).flat_map(|i| (0..self.width).map(move |j| (i, j)));
+        for (slot, (i, j)) in out.iter_mut().zip(cells) {
+            let g = self.global_of_row_col(i, j);
+            *slot = f(g, &self.cells[self.slot(g.0, g.1)]);
         }
-        out
     }
 
     /// Every cell with its global index, in storage order.
@@ -214,7 +213,9 @@ mod tests {
         }
         // Wrap the torus several times over: still consistent.
         g.recenter(-100.0, 57.0);
-        assert!(g.rows_north_up(|_, &v| v).iter().all(|&v| v == -1));
+        let mut all = vec![0; 48];
+        g.write_rows_north_up(&mut all, |_, &v| v);
+        assert!(all.iter().all(|&v| v == -1));
         assert_eq!(g.get(0, 0), None);
     }
 }

@@ -199,8 +199,10 @@ fn run() -> Result<()> {
         if now >= next_publish && pose.is_some() {
             next_publish = now + period_ns;
             for (layer, publisher) in &outputs {
-                let (header, cells) = map.export(last_stamp, *layer, config.use_far_field);
-                if let Err(e) = publisher.publish_copy(header, &cells) {
+                let published = publisher.publish_with(cells, |out| {
+                    map.export_into(last_stamp, *layer, config.use_far_field, out)
+                });
+                if let Err(e) = published {
                     health.dropped(&e);
                 }
             }

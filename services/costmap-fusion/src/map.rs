@@ -148,43 +148,54 @@ impl FusionMap {
         layer: CostmapLayer,
         use_far_field: bool,
     ) -> (CostmapHeader, Vec<CostCell>) {
-        let cells = match layer {
-            CostmapLayer::LOCAL => self.local.rows_north_up(|_, &c| CostCell {
+        let mut cells = vec![CostCell::default(); self.local.width() * self.local.height()];
+        let header = self.export_into(stamp, layer, use_far_field, &mut cells);
+        (header, cells)
+    }
+
+    /// [`Self::export`] into a caller's buffer (the stage writes straight
+    /// into a shared-memory sample; `out` holds width x height cells).
+    pub fn export_into(
+        &self,
+        stamp: Stamp,
+        layer: CostmapLayer,
+        use_far_field: bool,
+        out: &mut [CostCell],
+    ) -> CostmapHeader {
+        match layer {
+            CostmapLayer::LOCAL => self.local.write_rows_north_up(out, |_, &c| CostCell {
                 cost_s_per_m: c,
                 variance: if c.is_nan() { f32::NAN } else { 0.0 },
             }),
-            CostmapLayer::FAR_FIELD => self.far.rows_north_up(|_, c| CostCell {
+            CostmapLayer::FAR_FIELD => self.far.write_rows_north_up(out, |_, c| CostCell {
                 cost_s_per_m: c.mean_s_per_m,
                 variance: c.variance,
             }),
-            _ => self.local.rows_north_up(|(gx, gy), &c| {
+            _ => self.local.write_rows_north_up(out, |(gx, gy), &c| {
                 if !c.is_nan() {
-                    CostCell {
+                    return CostCell {
                         cost_s_per_m: c,
                         variance: 0.0,
-                    }
-                } else {
-                    let far = self
-                        .far
-                        .get(gx, gy)
-                        .copied()
-                        .unwrap_or(KalmanCell::initial(&self.far_field));
-                    CostCell {
-                        cost_s_per_m: if use_far_field {
-                            far.planning_cost(&self.far_field)
-                        } else {
-                            self.far_field.unknown_cost_s_per_m
-                        },
-                        variance: if use_far_field {
-                            far.variance
-                        } else {
-                            f32::INFINITY
-                        },
-                    }
+                    };
+                }
+                if !use_far_field {
+                    return CostCell {
+                        cost_s_per_m: self.far_field.unknown_cost_s_per_m,
+                        variance: f32::INFINITY,
+                    };
+                }
+                let far = self
+                    .far
+                    .get(gx, gy)
+                    .copied()
+                    .unwrap_or(KalmanCell::initial(&self.far_field));
+                CostCell {
+                    cost_s_per_m: far.planning_cost(&self.far_field),
+                    variance: far.variance,
                 }
             }),
-        };
-        (self.header(stamp, layer), cells)
+        }
+        self.header(stamp, layer)
     }
 
     /// Fixes every observed cell of a costmap from another system (a lidar

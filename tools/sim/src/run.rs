@@ -150,24 +150,21 @@ pub fn run(a: RunArgs) -> Result<Summary> {
         })?;
         let (lh, lc) = sensor.observe(&episode.scenario.world, r.x_m, r.y_m, stamp);
         locals.publish_copy(lh, &lc)?;
-        depths.publish_copy(
-            ImageHeader::packed(stamp, 0, a.width, a.height, PixelEncoding::F32),
-            &frame
-                .depth_m
-                .iter()
-                .flat_map(|d| d.to_le_bytes())
-                .collect::<Vec<u8>>(),
-        )?;
+        // Depth and the oracle's navigability are written straight into the
+        // shared-memory samples: no per-frame buffers.
+        depths.publish_with(w * h * 4, |buf| {
+            for (b, d) in buf.chunks_exact_mut(4).zip(&frame.depth_m) {
+                b.copy_from_slice(&d.to_le_bytes());
+            }
+            ImageHeader::packed(stamp, 0, a.width, a.height, PixelEncoding::F32)
+        })?;
         if let Some(o) = &oracle {
-            let nav: Vec<u8> = frame
-                .class_ids
-                .iter()
-                .map(|&c| if navigable_class(c) { 255 } else { 0 })
-                .collect();
-            o.publish_copy(
-                ImageHeader::packed(stamp, 0, a.width, a.height, PixelEncoding::MONO8),
-                &nav,
-            )?;
+            o.publish_with(w * h, |buf| {
+                for (b, &c) in buf.iter_mut().zip(&frame.class_ids) {
+                    *b = if navigable_class(c) { 255 } else { 0 };
+                }
+                ImageHeader::packed(stamp, 0, a.width, a.height, PixelEncoding::MONO8)
+            })?;
         }
         images.publish_copy(
             ImageHeader::packed(stamp, 0, a.width, a.height, PixelEncoding::RGB8),
