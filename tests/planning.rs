@@ -690,4 +690,86 @@ mod graph {
             "{err}"
         );
     }
+
+    /// Malformed near-field costmaps and polar bins from a peer are dropped,
+    /// counted and named in health; the stage keeps fusing what is valid.
+    #[test]
+    fn costmap_fusion_drops_malformed_maps_and_bins_and_keeps_running() {
+        use farsight_interfaces::fixed::FixedVec;
+        let ns = Namespace::new("fusionbad");
+        let bus = ns.bus("fusion-bad-test");
+        let cfg = ns.write(
+            "costmap-fusion.toml",
+            "width_cells = 41\nheight_cells = 41\npublish_rate_hz = 20.0\n",
+        );
+        let fused = bus.slice_subscriber(&topics::costmap("fused")).unwrap();
+        let health = bus.subscriber(&topics::health("costmap-fusion")).unwrap();
+        let fusion = ns.start_stage("farsight-costmap-fusion", "costmap-fusion", &cfg);
+        let pose = bus.publisher(&topics::pose()).unwrap();
+        let local = bus
+            .slice_publisher(&topics::costmap("local"), 21 * 21)
+            .unwrap();
+        let polar = bus.slice_publisher(&topics::polar_bins(), 96).unwrap();
+        pose.publish(&Pose::default()).unwrap();
+        std::thread::sleep(Duration::from_millis(100));
+        // A header that promises more cells than it carries, and one with a
+        // NaN origin.
+        let (header, cells) = near_field(10, |x, y| x == 5 && y == 0);
+        local.publish_copy(header, &cells[..100]).unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        let nan = CostmapHeader {
+            x_min_m: f64::NAN,
+            ..header
+        };
+        local.publish_copy(nan, &cells).unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        // Polar bins whose last range edge would have the rasteriser walk
+        // a billion cells.
+        let absurd = PolarBinsHeader {
+            heading_bins: 32,
+            first_heading_start_rad: -std::f32::consts::PI,
+            heading_width_rad: std::f32::consts::TAU / 32.0,
+            range_edges_m: FixedVec::from_slice(&[25.0, 50.0, 75.0, 1e9]).unwrap(),
+            ..Default::default()
+        };
+        let bins = vec![
+            PolarCell {
+                cost_s_per_m: 0.2,
+                variance: 0.1,
+                class_id: 2,
+                probability: 0.9
+            };
+            96
+        ];
+        polar.publish_copy(absurd, &bins).unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        // Then a valid map: fused as usual.
+        let end = Instant::now() + Duration::from_secs(10);
+        loop {
+            pose.publish(&Pose::default()).unwrap();
+            local.publish_copy(header, &cells).unwrap();
+            std::thread::sleep(Duration::from_millis(50));
+            if let Some(f) = fused.latest().unwrap() {
+                let h = *f.header();
+                if f.data()[h.cell_index(5.0, 0.0).unwrap()]
+                    .cost_s_per_m
+                    .is_infinite()
+                {
+                    break;
+                }
+            }
+            assert!(
+                Instant::now() < end,
+                "the valid map never arrived\n{}",
+                fusion.stderr_so_far()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(1100)); // a health period
+        let h = health.latest().unwrap().expect("fusion health");
+        assert!(h.dropped >= 3, "dropped {}: {:?}", h.dropped, h.reason);
+        let log = fusion.stderr_so_far();
+        for why in ["payload holds 100", "not finite", "range edges"] {
+            assert!(log.contains(why), "{why:?} not logged:\n{log}");
+        }
+    }
 }

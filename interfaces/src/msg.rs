@@ -518,6 +518,30 @@ impl CostmapHeader {
             .then(|| i as usize * self.width as usize + j as usize)
     }
 
+    /// Checks the header against its payload: the cell count, a positive
+    /// finite resolution and a finite origin. The error names what is wrong.
+    pub fn validate(&self, cells: usize) -> Result<(), String> {
+        if self.cell_count() != cells {
+            return Err(format!(
+                "costmap header says {}x{} cells but the payload holds {cells}",
+                self.width, self.height
+            ));
+        }
+        if !(self.resolution_m.is_finite() && self.resolution_m > 0.0) {
+            return Err(format!(
+                "costmap resolution {} m is not a positive size",
+                self.resolution_m
+            ));
+        }
+        if !(self.x_min_m.is_finite() && self.y_max_m.is_finite()) {
+            return Err(format!(
+                "costmap origin ({}, {}) is not finite",
+                self.x_min_m, self.y_max_m
+            ));
+        }
+        Ok(())
+    }
+
     /// Cells the payload must hold.
     pub fn cell_count(&self) -> usize {
         self.width as usize * self.height as usize
@@ -680,6 +704,31 @@ mod tests {
             let [x, y] = h.cell_centre_m(k);
             assert_eq!(h.cell_index(x, y), Some(k));
         }
+    }
+
+    #[test]
+    fn costmap_headers_are_checked_against_their_payload() {
+        let h = CostmapHeader {
+            width: 4,
+            height: 3,
+            resolution_m: 1.0,
+            ..Default::default()
+        };
+        assert!(h.validate(12).is_ok());
+        assert!(h
+            .validate(11)
+            .unwrap_err()
+            .contains("4x3 cells but the payload holds 11"));
+        let bad = CostmapHeader {
+            resolution_m: 0.0,
+            ..h
+        };
+        assert!(bad.validate(12).unwrap_err().contains("resolution 0"));
+        let bad = CostmapHeader {
+            x_min_m: f64::NAN,
+            ..h
+        };
+        assert!(bad.validate(12).unwrap_err().contains("not finite"));
     }
 
     #[test]

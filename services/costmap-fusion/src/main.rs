@@ -118,36 +118,34 @@ fn run() -> Result<()> {
                 (Ok(Some(s)), Some(p)) => {
                     health.input();
                     let h = *s.header();
-                    let geometry = PolarGeometry {
-                        heading_bins: h.heading_bins as usize,
-                        first_heading_start_rad: h.first_heading_start_rad as f64,
-                        heading_width_rad: h.heading_width_rad as f64,
-                        range_edges_m: h
-                            .range_edges_m
-                            .as_slice()
-                            .iter()
-                            .map(|&e| e as f64)
-                            .collect(),
-                    };
-                    let want = geometry.heading_bins * geometry.radial_bins();
-                    if s.data().len() != want {
-                        health.dropped(&format_args!(
-                            "polar bins hold {} cells, {} heading x {} radial bins need {want}",
-                            s.data().len(),
-                            geometry.heading_bins,
-                            geometry.radial_bins()
-                        ));
-                    } else if config.use_far_field {
-                        let u = map.observe_far_field(
-                            &geometry,
-                            s.data(),
-                            p.position_m[0],
-                            p.position_m[1],
-                            p.yaw_rad,
-                        );
-                        map.add_process_noise();
-                        last_stamp = h.stamp;
-                        tracing::debug!(?u, "far-field update");
+                    let geometry = PolarGeometry::from_header(&h).and_then(|g| {
+                        let want = g.heading_bins * g.radial_bins();
+                        if s.data().len() == want {
+                            Ok(g)
+                        } else {
+                            Err(format!(
+                                "polar bins hold {} cells, {} heading x {} radial bins need {want}",
+                                s.data().len(),
+                                g.heading_bins,
+                                g.radial_bins()
+                            ))
+                        }
+                    });
+                    match geometry {
+                        Err(e) => health.dropped(&format_args!("bins/polar: {e}")),
+                        Ok(_) if !config.use_far_field => {}
+                        Ok(geometry) => {
+                            let u = map.observe_far_field(
+                                &geometry,
+                                s.data(),
+                                p.position_m[0],
+                                p.position_m[1],
+                                p.yaw_rad,
+                            );
+                            map.add_process_noise();
+                            last_stamp = h.stamp;
+                            tracing::debug!(?u, "far-field update");
+                        }
                     }
                 }
                 (Ok(Some(_)), None) => health.dropped(&"polar bins before any pose"),
@@ -175,16 +173,10 @@ fn run() -> Result<()> {
                 Ok(Some(s)) => {
                     health.input();
                     let h = *s.header();
-                    if h.cell_count() != s.data().len()
-                        || h.resolution_m.is_nan()
-                        || h.resolution_m <= 0.0
-                    {
+                    if let Err(e) = h.validate(s.data().len()) {
                         health.dropped(&format_args!(
-                            "costmap/{}: {}x{} header with {} cells",
-                            config.local_costmaps[k - 1],
-                            h.width,
-                            h.height,
-                            s.data().len()
+                            "costmap/{}: {e}",
+                            config.local_costmaps[k - 1]
                         ));
                     } else {
                         map.apply_local_costmap(&h, s.data());

@@ -9,6 +9,7 @@
 //! straddle +-pi.
 
 use crate::grid::cell_of;
+use farsight_interfaces::msg::PolarBinsHeader;
 use std::f64::consts::{PI, TAU};
 
 /// The layout of a set of polar bins in the robot frame.
@@ -32,6 +33,49 @@ impl PolarGeometry {
             heading_width_rad: TAU / 32.0,
             range_edges_m: vec![25.0, 50.0, 75.0, 100.0],
         }
+    }
+
+    /// The geometry a polar-bin message describes, checked: 1 to 360
+    /// heading bins of a positive width covering at most a full turn, and 2
+    /// to 16 increasing, finite range edges out to at most 1 km (a peer's
+    /// absurd edge must not make the rasteriser walk millions of cells).
+    pub fn from_header(h: &PolarBinsHeader) -> Result<Self, String> {
+        let edges: Vec<f64> = h
+            .range_edges_m
+            .as_slice()
+            .iter()
+            .map(|&e| e as f64)
+            .collect();
+        let width = h.heading_width_rad as f64;
+        if !(1..=360).contains(&h.heading_bins) {
+            return Err(format!("{} heading bins: want 1..=360", h.heading_bins));
+        }
+        let turn_ok = width.is_finite()
+            && width > 0.0
+            && width * h.heading_bins as f64 <= TAU + 1e-3
+            && h.first_heading_start_rad.is_finite();
+        if !turn_ok {
+            return Err(format!(
+                "heading bins of {width} rad from {} rad: want a positive width, at most a full turn",
+                h.first_heading_start_rad
+            ));
+        }
+        let ok = edges.len() >= 2
+            && edges
+                .iter()
+                .all(|e| e.is_finite() && (0.0..=1000.0).contains(e))
+            && edges.windows(2).all(|w| w[0] < w[1]);
+        if !ok {
+            return Err(format!(
+                "range edges {edges:?} m: want 2 or more increasing, in 0..=1000"
+            ));
+        }
+        Ok(Self {
+            heading_bins: h.heading_bins as usize,
+            first_heading_start_rad: h.first_heading_start_rad as f64,
+            heading_width_rad: width,
+            range_edges_m: edges,
+        })
     }
 
     pub fn radial_bins(&self) -> usize {
@@ -93,6 +137,49 @@ mod tests {
             }
         });
         s
+    }
+
+    #[test]
+    fn message_geometry_is_checked_before_use() {
+        use farsight_interfaces::fixed::FixedVec;
+        let good = PolarBinsHeader {
+            heading_bins: 32,
+            first_heading_start_rad: -std::f32::consts::PI,
+            heading_width_rad: std::f32::consts::TAU / 32.0,
+            range_edges_m: FixedVec::from_slice(&[25.0, 50.0, 75.0, 100.0]).unwrap(),
+            ..Default::default()
+        };
+        let g = PolarGeometry::from_header(&good).unwrap();
+        let d = PolarGeometry::fitam_default();
+        assert_eq!(
+            (g.heading_bins, &g.range_edges_m),
+            (d.heading_bins, &d.range_edges_m)
+        );
+        assert!(
+            (g.heading_width_rad - d.heading_width_rad).abs() < 1e-6,
+            "f32 on the wire"
+        );
+        let far = PolarBinsHeader {
+            range_edges_m: FixedVec::from_slice(&[25.0, 1e9]).unwrap(),
+            ..good
+        };
+        assert!(PolarGeometry::from_header(&far)
+            .unwrap_err()
+            .contains("range edges"));
+        let zero = PolarBinsHeader {
+            heading_bins: 0,
+            ..good
+        };
+        assert!(PolarGeometry::from_header(&zero)
+            .unwrap_err()
+            .contains("0 heading bins"));
+        let nan = PolarBinsHeader {
+            heading_width_rad: f32::NAN,
+            ..good
+        };
+        assert!(PolarGeometry::from_header(&nan)
+            .unwrap_err()
+            .contains("positive width"));
     }
 
     #[test]

@@ -427,13 +427,8 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
                 Ok(Some(c)) => {
                     health.input();
                     let h = *c.header();
-                    if h.cell_count() != c.data().len() {
-                        health.dropped(&format_args!(
-                            "costmap {}x{} header with {} cells",
-                            h.width,
-                            h.height,
-                            c.data().len()
-                        ));
+                    if let Err(e) = h.validate(c.data().len()) {
+                        health.dropped(&format_args!("costmap/{}: {e}", config.costmap));
                     } else {
                         stamp = h.stamp;
                         match &mut planner {
