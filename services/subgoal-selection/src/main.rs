@@ -387,8 +387,15 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
                                 .map(|q| q.iter().map(|&v| -(v as f64)).collect());
                             dirty = true;
                         }
-                        Ok(Err(e)) => health.dropped(&format_args!("HIP model output: {e}")),
-                        Err(e) => health.dropped(&format_args!("HIP model: {e}")),
+                        Ok(Err(e)) => {
+                            // Never score with an older frame's output.
+                            *learned = None;
+                            health.dropped(&format_args!("HIP model output: {e}"));
+                        }
+                        Err(e) => {
+                            *learned = None;
+                            health.dropped(&format_args!("HIP model: {e}"));
+                        }
                     }
                 }
             }

@@ -269,6 +269,30 @@ mod tests {
     use super::*;
 
     #[test]
+    fn far_field_labels_beat_near_field_only_on_the_bridge() {
+        // The benchmark's own trial: FITAM with ground-truth labels sees the
+        // bridge 30 m off the line early; near-field alone finds it by
+        // following the river bank.
+        let (base, _) = trial("dstar_no_far_field", "bridge", 1, 300.0).unwrap();
+        let (fitam, _) = trial("fitam_gt", "bridge", 1, 300.0).unwrap();
+        assert_eq!(
+            (base.outcome, fitam.outcome),
+            (Outcome::Reached, Outcome::Reached)
+        );
+        assert!(
+            fitam.traversal_cost_s < 0.9 * base.traversal_cost_s,
+            "{fitam:?} vs {base:?}"
+        );
+        let (straight, _) = trial("goal_heuristic", "bridge", 1, 60.0).unwrap();
+        assert_eq!(
+            straight.outcome,
+            Outcome::TimedOut,
+            "the baseline stops at the river"
+        );
+        assert!(straight.collisions > 0);
+    }
+
+    #[test]
     fn wilson_interval_by_hand() {
         let (lo, hi) = wilson(5, 10);
         assert!(

@@ -10,23 +10,13 @@ use farsight_costmap_fusion::kalman::FarFieldConfig;
 use farsight_costmap_fusion::map::FusionMap;
 use farsight_costmap_fusion::swath::PolarGeometry;
 use farsight_interfaces::msg::{CostmapLayer, PolarCell, Stamp};
+use farsight_sim::rng::SplitMix64;
 use farsight_subgoal_selection::dstar_lite::{astar, CostGrid, DStarLite};
 use std::time::Instant;
 
 fn median_ms(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2] * 1e3
-}
-
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
 }
 
 pub fn run(a: PlanningArgs) -> Result<()> {
@@ -67,18 +57,18 @@ pub fn run(a: PlanningArgs) -> Result<()> {
     );
 
     let side = a.side.max(10);
-    let mut rng = Lcg(7);
+    let mut rng = SplitMix64::new(7);
     let mut grid = CostGrid::new(side, side, 1.0, 1.0);
     for y in 0..side {
         for x in 0..side {
-            let r = rng.next();
+            let r = rng.unit();
             grid.set(
                 x,
                 y,
                 if r < 0.1 {
                     f32::INFINITY
                 } else {
-                    (0.2 + 2.0 * rng.next()) as f32
+                    (0.2 + 2.0 * rng.unit()) as f32
                 },
             );
         }
@@ -101,13 +91,13 @@ pub fn run(a: PlanningArgs) -> Result<()> {
         d.move_start(robot);
         for _ in 0..25 {
             let x =
-                (robot.0 as f64 + (rng.next() - 0.5) * 40.0).clamp(0.0, side as f64 - 1.0) as usize;
+                (robot.0 as f64 + (rng.unit() - 0.5) * 40.0).clamp(0.0, side as f64 - 1.0) as usize;
             let y =
-                (robot.1 as f64 + (rng.next() - 0.5) * 40.0).clamp(0.0, side as f64 - 1.0) as usize;
+                (robot.1 as f64 + (rng.unit() - 0.5) * 40.0).clamp(0.0, side as f64 - 1.0) as usize;
             if (x, y) == robot || (x, y) == goal {
                 continue;
             }
-            let c = if rng.next() < 0.5 { f32::INFINITY } else { 0.3 };
+            let c = if rng.unit() < 0.5 { f32::INFINITY } else { 0.3 };
             g.set(x, y, c);
             d.set_cost(x, y, c);
         }
