@@ -5,9 +5,9 @@
 //! map with the driven track (PNG) and `summary.toml`.
 //!
 //! Methods:
-//! - `dstar_lite` (default): near-field sensing -> costmap-fusion -> D* Lite
+//! - `--method dstar-lite` (default): near-field sensing -> costmap-fusion -> D* Lite
 //!   -> carrot tracking (FITAM's "no far-field" baseline);
-//! - `povnav`: the inference stage's HSV backend on the rendered RGB ->
+//! - `--method povnav`: the inference stage's HSV backend on the rendered RGB ->
 //!   POVNav -> the POVNav servo law; `--oracle` swaps the inference stage
 //!   for the simulator's class image.
 //!
