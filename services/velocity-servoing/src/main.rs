@@ -5,15 +5,19 @@
 //! a reached goal give zero velocity at once, with the reason in the command
 //! and in the stage's health. An old command is never republished: every
 //! output is computed from the inputs of that moment.
+//!
+//! With `clock = "stamps"` (lock-step simulation, replays) time is the
+//! inputs' capture times and each new tracked input gets one command, so a
+//! run is the same on any machine.
 
 use anyhow::Result;
-use farsight_interfaces::clock::{Clock, InputDeadline, WallClock};
+use farsight_interfaces::clock::{Clock, InputDeadline, ManualClock, WallClock};
 use farsight_interfaces::geo::GoalTracker;
 use farsight_interfaces::msg::{CommandReason, HealthState, Stamp, SubgoalSource, VelocityCommand};
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
 use farsight_stage::{load_config, Health, StageArgs};
-use farsight_velocity_servoing::stage::{ServoStageConfig, Track};
+use farsight_velocity_servoing::stage::{ClockSource, ServoStageConfig, Track};
 use farsight_velocity_servoing::{
     carrot_command, carrot_point, decide, heading_command, path_in_robot_frame, povnav_command,
     Inputs, RateLimiter,
@@ -43,7 +47,11 @@ fn run() -> Result<()> {
     let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
     farsight_stage::announce_ready(STAGE);
 
-    let clock = WallClock;
+    let stamps = ManualClock::new(0);
+    let clock: &dyn Clock = match config.clock {
+        ClockSource::Wall => &WallClock,
+        ClockSource::Stamps => &stamps,
+    };
     let mut deadline = InputDeadline::new(config.subgoal_deadline_s);
     let (mut subgoal, mut path, mut estop, mut pose) = (None, None, None, None);
     let tracked = match config.track {
@@ -52,17 +60,27 @@ fn run() -> Result<()> {
     };
     let mut limiter = RateLimiter::default();
     let period = Duration::from_secs_f64(1.0 / config.output_rate_hz);
-    let mut last_ns = clock.now_ns();
+    // The first command's ramp spans one nominal period.
+    let mut last_ns: Option<u64> = None;
+    let mut fresh_tracked = false;
     ipc::wait_loop(
         &[subgoals.listener(), estops.listener(), paths.listener()],
         Some(period),
         |wake| {
-            let now = clock.now_ns();
+            let stamped = config.clock == ClockSource::Stamps;
             match subgoals.latest() {
                 Ok(Some(s)) => {
                     if config.track == Track::Subgoal {
+                        if stamped {
+                            stamps.set_ns(s.stamp.capture_time_ns);
+                        }
                         health.input();
-                        deadline.seen(now);
+                        deadline.seen(if stamped {
+                            s.stamp.capture_time_ns
+                        } else {
+                            clock.now_ns()
+                        });
+                        fresh_tracked = true;
                     }
                     subgoal = Some(s);
                 }
@@ -72,8 +90,16 @@ fn run() -> Result<()> {
             match paths.latest() {
                 Ok(Some(p)) => {
                     if config.track == Track::Path {
+                        if stamped {
+                            stamps.set_ns(p.stamp.capture_time_ns);
+                        }
                         health.input();
-                        deadline.seen(now);
+                        deadline.seen(if stamped {
+                            p.stamp.capture_time_ns
+                        } else {
+                            clock.now_ns()
+                        });
+                        fresh_tracked = true;
                     }
                     path = Some(p);
                 }
@@ -84,6 +110,9 @@ fn run() -> Result<()> {
                 estop = Some(e);
             }
             if let Ok(Some(p)) = poses.latest() {
+                if stamped {
+                    stamps.set_ns(p.stamp.capture_time_ns);
+                }
                 tracker.set_pose(p);
                 pose = Some(p);
             }
@@ -92,12 +121,23 @@ fn run() -> Result<()> {
             }
             // Commands go out on the tick only (a fixed output rate), and an e-stop
             // is acted on the moment it arrives.
+            let now = clock.now_ns();
             let estop_now = wake == Wake::Input(1) && estop.is_some_and(|e| e.active == 1);
-            if wake != Wake::Tick && !estop_now {
+            let due = match config.clock {
+                ClockSource::Wall => wake == Wake::Tick,
+                ClockSource::Stamps => fresh_tracked,
+            };
+            if !due && !estop_now {
+                if wake == Wake::Tick {
+                    health.tick(now);
+                }
                 return ControlFlow::Continue(());
             }
-            let dt = now.saturating_sub(last_ns) as f64 * 1e-9;
-            last_ns = now;
+            fresh_tracked = false;
+            let dt = last_ns.map_or(period.as_secs_f64(), |t| {
+                now.saturating_sub(t) as f64 * 1e-9
+            });
+            last_ns = Some(now);
             let goal_distance = tracker.goal_in_robot_frame().map(|(_, d)| d);
             let inputs = Inputs {
                 subgoal_stale: deadline.is_stale(now),

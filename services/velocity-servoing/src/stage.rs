@@ -2,6 +2,11 @@
 //!
 //! ```toml
 //! output_rate_hz = 20.0          # commands are published at this rate, always
+//! clock = "wall"                 # "wall": the system clock, commands at output_rate_hz;
+//!                                # "stamps": time is the inputs' capture times and one
+//!                                # command answers each new tracked input (lock-step
+//!                                # simulation and replays; never on a robot: with no
+//!                                # input, time stands still and nothing goes stale)
 //! track = "subgoal"              # "subgoal" (nav/subgoal: POVNav features or an
 //!                                # LRN heading) or "path" (a planner's path, by carrot)
 //! path_topic = "planned"         # with track = "path": nav/path/<path_topic>
@@ -28,6 +33,19 @@ use crate::ServoConfig;
 use farsight_stage::{ConfigError, Validate};
 use serde::{Deserialize, Serialize};
 
+/// Where the servo's "now" comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ClockSource {
+    /// The system clock; commands at `output_rate_hz`.
+    #[default]
+    Wall,
+    /// The newest capture time among the inputs; a command per tracked
+    /// input, its ramps measured between their capture times, so the same
+    /// inputs give the same commands however fast the machine is.
+    Stamps,
+}
+
 /// Which input the servo follows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
@@ -43,6 +61,7 @@ pub enum Track {
 #[serde(deny_unknown_fields, default)]
 pub struct ServoStageConfig {
     pub output_rate_hz: f64,
+    pub clock: ClockSource,
     pub track: Track,
     pub path_topic: String,
     pub subgoal_deadline_s: f64,
@@ -56,6 +75,7 @@ impl Default for ServoStageConfig {
     fn default() -> Self {
         Self {
             output_rate_hz: 20.0,
+            clock: ClockSource::Wall,
             track: Track::Subgoal,
             path_topic: "planned".into(),
             subgoal_deadline_s: 0.5,

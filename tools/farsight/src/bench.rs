@@ -130,6 +130,10 @@ pub struct NavArgs {
     /// Simulated seconds per trial (road-forest's forest allows 0.5 m/s).
     #[arg(long, default_value_t = 600.0)]
     pub max_time_s: f64,
+    /// Write each trial's poses (`<scenario>-<method>-<seed>.csv`, as
+    /// `farsight-sim run` writes `poses.csv`) into this folder.
+    #[arg(long)]
+    pub trace: Option<std::path::PathBuf>,
 }
 
 pub fn run(cmd: BenchCommand) -> Result<()> {

@@ -11,7 +11,13 @@
 //! - `fitam_gt`: the same plus far-field observations with ground-truth labels
 //!   (FITAM's "GT labels" row);
 //! - `povnav_oracle`: POVNav on the rendered class image (oracle perception)
-//!   -> the POVNav servo law.
+//!   -> the POVNav servo law, with the demo's configs (`sim_tuning`) and the
+//!   graph's message precision, so a trial drives the track that
+//!   `farsight demo --method povnav --oracle` drives (`tests/closed_loop.rs`
+//!   checks that bit for bit);
+//! - `pog_only`: POVNav's baseline: the same servo steered at the peripheral
+//!   optic goal (the goal's direction in the image) instead of along the
+//!   visual path; its speed still follows the visual horizon's proximity.
 //!
 //! Metrics per trial come from `farsight_sim::episode`; the table gives the
 //! success rate with a 95% Wilson interval and means with 95% normal
@@ -19,32 +25,39 @@
 //! trials; interventions over all).
 
 use crate::bench::NavArgs;
+use crate::sim_tuning;
 use anyhow::Result;
 use farsight_costmap_fusion::kalman::FarFieldConfig;
 use farsight_costmap_fusion::map::FusionMap;
 use farsight_costmap_fusion::swath::PolarGeometry;
-use farsight_interfaces::msg::{CostmapLayer, Pose, Stamp};
-use farsight_sim::episode::{Episode, EpisodeConfig, Outcome, Summary};
+use farsight_interfaces::geo::goal_in_robot_frame;
+use farsight_interfaces::msg::{CostmapLayer, GoalKind, NavGoal, Pose, Stamp};
+use farsight_sim::episode::{Episode, EpisodeConfig, Outcome, PoseLog, Summary};
 use farsight_sim::labels::{ground_truth_bins, LabelRules};
 use farsight_sim::render::{Frame, Renderer};
-use farsight_sim::run::{front_camera, navigable_class};
+use farsight_sim::run::{capture_time_ns, front_camera, navigable_class};
 use farsight_sim::scenario::scenario;
 use farsight_sim::sensor::NearFieldSensor;
 use farsight_subgoal_selection::planner::{WorldPlanner, WorldPlannerConfig};
-use farsight_subgoal_selection::povnav::{plan, safe_half_widths, PovnavConfig};
+use farsight_subgoal_selection::povnav::{plan, safe_half_widths, to_plan};
+use farsight_subgoal_selection::stage::SubgoalStageConfig;
+use farsight_velocity_servoing::stage::ServoStageConfig;
 use farsight_velocity_servoing::{
-    carrot_command, carrot_point, heading_command, povnav_command, RateLimiter, ServoConfig,
+    carrot_command, carrot_point, decide, heading_command, povnav_command, Inputs, RateLimiter,
+    ServoConfig,
 };
 use std::time::Instant;
 
-pub const METHODS: [&str; 4] = [
+pub const METHODS: [&str; 5] = [
     "goal_heuristic",
     "dstar_no_far_field",
     "fitam_gt",
     "povnav_oracle",
+    "pog_only",
 ];
 
-const DT_S: f64 = 0.1;
+/// The simulator's frame period, as `farsight-sim run` computes it.
+const DT_S: f64 = 1.0 / sim_tuning::RATE_HZ;
 
 struct Controller {
     method: &'static str,
@@ -56,19 +69,119 @@ struct Controller {
     sensor: NearFieldSensor,
     geometry: PolarGeometry,
     labels: LabelRules,
-    renderer: Option<(Renderer, Frame, Vec<usize>)>,
-    povnav: PovnavConfig,
+    rig: Option<PovnavRig>,
     step: u64,
+}
+
+/// POVNav as the demo's graph runs it: the simulator's camera, the stage
+/// configs of `sim_tuning`, the servo on the stamps' clock.
+struct PovnavRig {
+    renderer: Renderer,
+    frame: Frame,
+    nav: Vec<u8>,
+    half_widths: Vec<usize>,
+    stage: SubgoalStageConfig,
+    servo: ServoStageConfig,
+    last_ns: Option<u64>,
+}
+
+impl PovnavRig {
+    fn new() -> Self {
+        let (w, h) = sim_tuning::IMAGE_SIZE;
+        let cam = front_camera(w, h);
+        let stage = sim_tuning::povnav_subgoal_selection();
+        let m = &cam.model;
+        let half_widths = safe_half_widths(
+            h as usize,
+            m.fx,
+            m.fy,
+            m.cy,
+            cam.mount.height_m(),
+            stage.robot_width_m,
+            stage.safety_margin_m,
+        );
+        Self {
+            renderer: Renderer::new(&cam, 150.0),
+            frame: Frame::default(),
+            nav: Vec::new(),
+            half_widths,
+            stage,
+            servo: sim_tuning::povnav_servo(),
+            last_ns: None,
+        }
+    }
+
+    /// One frame: render, POVNav (or its POG-only baseline), servo; the
+    /// values pass through f32 where the graph's messages carry f32.
+    fn command(
+        &mut self,
+        e: &Episode,
+        pose: &Pose,
+        limiter: &mut RateLimiter,
+        pog_only: bool,
+    ) -> (f64, f64) {
+        let r = e.robot;
+        self.renderer
+            .render(&e.scenario.world, r.pose(), &mut self.frame);
+        let f = &self.frame;
+        self.nav.clear();
+        self.nav.extend(
+            f.class_ids
+                .iter()
+                .map(|&c| if navigable_class(c) { 255u8 } else { 0 }),
+        );
+        let goal = sim_goal(e.scenario.goal);
+        let Some((bearing, distance)) = goal_in_robot_frame(pose, &goal, None) else {
+            return limiter.stop();
+        };
+        let p = plan(
+            &self.nav,
+            f.width,
+            f.height,
+            bearing,
+            &self.half_widths,
+            &self.stage.povnav,
+        );
+        let alignment = if pog_only {
+            let (x, y) = to_plan(p.pog_px.0, p.pog_px.1, f.width, f.height);
+            y.atan2(x)
+        } else {
+            p.alignment_rad
+        };
+        let (lambda, phi) = (p.proximity_px as f32 as f64, alignment as f32 as f64);
+        let now = capture_time_ns(e.time_s);
+        let period = std::time::Duration::from_secs_f64(1.0 / self.servo.output_rate_hz);
+        let dt = self.last_ns.map_or(period.as_secs_f64(), |t| {
+            now.saturating_sub(t) as f64 * 1e-9
+        });
+        self.last_ns = Some(now);
+        let inputs = Inputs {
+            subgoal_stale: false,
+            estop_active: false,
+            goal_distance_m: Some(distance),
+        };
+        let cfg = &self.servo.servo;
+        if decide(&inputs, cfg).is_some() {
+            return limiter.stop();
+        }
+        limiter.limit(povnav_command(lambda, phi, cfg), dt, cfg)
+    }
+}
+
+/// The goal as the simulator publishes it.
+fn sim_goal(goal: [f64; 2]) -> NavGoal {
+    NavGoal {
+        kind: GoalKind::LOCAL,
+        x_m: goal[0],
+        y_m: goal[1],
+        tolerance_m: 2.0,
+        ..Default::default()
+    }
 }
 
 impl Controller {
     fn new(method: &'static str) -> Self {
-        let renderer = (method == "povnav_oracle").then(|| {
-            let cam = front_camera(320, 180);
-            let m = &cam.model;
-            let hw = safe_half_widths(180, m.fx, m.fy, m.cy, cam.mount.height_m(), 0.8, 0.2);
-            (Renderer::new(&cam, 150.0), Frame::default(), hw)
-        });
+        let rig = matches!(method, "povnav_oracle" | "pog_only").then(PovnavRig::new);
         Self {
             method,
             servo: ServoConfig {
@@ -86,8 +199,7 @@ impl Controller {
             sensor: NearFieldSensor::default(),
             geometry: PolarGeometry::fitam_default(),
             labels: LabelRules::default(),
-            renderer,
-            povnav: PovnavConfig::default(),
+            rig,
             step: 0,
         }
     }
@@ -100,28 +212,15 @@ impl Controller {
             yaw_rad: r.yaw_rad,
             ..Default::default()
         };
+        if let Some(rig) = &mut self.rig {
+            let (v, w) = rig.command(e, &pose, &mut self.limiter, self.method == "pog_only");
+            // The graph's velocity command carries f32.
+            return (v as f32 as f64, w as f32 as f64);
+        }
         let goal_robot = pose.to_robot_frame(e.scenario.goal);
         let goal_bearing = goal_robot[1].atan2(goal_robot[0]);
         let target = match self.method {
             "goal_heuristic" => heading_command(goal_bearing, &self.servo),
-            "povnav_oracle" => {
-                let (renderer, frame, hw) = self.renderer.as_mut().expect("built for povnav");
-                renderer.render(&e.scenario.world, r.pose(), frame);
-                let nav: Vec<u8> = frame
-                    .class_ids
-                    .iter()
-                    .map(|&c| if navigable_class(c) { 255 } else { 0 })
-                    .collect();
-                let p = plan(
-                    &nav,
-                    frame.width,
-                    frame.height,
-                    goal_bearing,
-                    hw,
-                    &self.povnav,
-                );
-                povnav_command(p.proximity_px, p.alignment_rad, &self.servo)
-            }
             _ => {
                 let world = &e.scenario.world;
                 self.fusion.recenter(r.x_m, r.y_m);
@@ -163,7 +262,9 @@ pub fn trial(
     scenario_name: &str,
     seed: u64,
     max_time_s: f64,
+    trace: Option<&std::path::Path>,
 ) -> Result<(Summary, u64)> {
+    let mut trace = trace.map(PoseLog::create).transpose()?;
     let s = scenario(scenario_name, seed)?;
     let mut e = Episode::new(
         s,
@@ -177,7 +278,14 @@ pub fn trial(
     loop {
         let cmd = c.command(&e);
         steps += 1;
-        if e.step(cmd, DT_S) != Outcome::Driving {
+        let outcome = e.step(cmd, DT_S);
+        if let Some(t) = &mut trace {
+            t.record(&e)?;
+        }
+        if outcome != Outcome::Driving {
+            if let Some(t) = &mut trace {
+                t.flush()?;
+            }
             return Ok((e.summary(), steps));
         }
     }
@@ -220,12 +328,19 @@ pub fn run(a: NavArgs) -> Result<()> {
     );
     println!("| scenario | method | success [95% CI] | path m | time s | cost s | interventions |");
     println!("|---|---|---|---|---|---|---|");
+    if let Some(d) = &a.trace {
+        std::fs::create_dir_all(d)?;
+    }
     let (mut steps, t0) = (0u64, Instant::now());
     for sc in &a.scenarios {
         for &m in &methods {
             let mut runs = Vec::new();
             for seed in 1..=a.trials as u64 {
-                let (s, n) = trial(m, sc, seed, a.max_time_s)?;
+                let trace = a
+                    .trace
+                    .as_ref()
+                    .map(|d| d.join(format!("{sc}-{m}-{seed}.csv")));
+                let (s, n) = trial(m, sc, seed, a.max_time_s, trace.as_deref())?;
                 eprintln!(
                     "  {sc} {m} seed {seed}: {:?} after {:.0} s, {:.0} m",
                     s.outcome, s.time_s, s.distance_m
@@ -273,8 +388,8 @@ mod tests {
         // The benchmark's own trial: FITAM with ground-truth labels sees the
         // bridge 30 m off the line early; near-field alone finds it by
         // following the river bank.
-        let (base, _) = trial("dstar_no_far_field", "bridge", 1, 300.0).unwrap();
-        let (fitam, _) = trial("fitam_gt", "bridge", 1, 300.0).unwrap();
+        let (base, _) = trial("dstar_no_far_field", "bridge", 1, 300.0, None).unwrap();
+        let (fitam, _) = trial("fitam_gt", "bridge", 1, 300.0, None).unwrap();
         assert_eq!(
             (base.outcome, fitam.outcome),
             (Outcome::Reached, Outcome::Reached)
@@ -283,7 +398,7 @@ mod tests {
             fitam.traversal_cost_s < 0.9 * base.traversal_cost_s,
             "{fitam:?} vs {base:?}"
         );
-        let (straight, _) = trial("goal_heuristic", "bridge", 1, 60.0).unwrap();
+        let (straight, _) = trial("goal_heuristic", "bridge", 1, 60.0, None).unwrap();
         assert_eq!(
             straight.outcome,
             Outcome::TimedOut,

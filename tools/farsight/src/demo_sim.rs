@@ -14,6 +14,7 @@
 //! LRN needs an affordance model, which the training issue produces.
 
 use crate::demo::{start_ready, Stage};
+use crate::sim_tuning;
 use anyhow::{bail, Context, Result};
 use clap::ValueEnum;
 use std::path::{Path, PathBuf};
@@ -86,12 +87,12 @@ pub fn run(d: SimDemo) -> Result<()> {
             let planner = write(
                 &out,
                 "subgoal-selection.toml",
-                "method = \"povnav\"\ncamera = \"front\"\n",
+                &sim_tuning::to_toml(&sim_tuning::povnav_subgoal_selection())?,
             )?;
             let servo = write(
                 &out,
                 "velocity-servoing.toml",
-                "output_rate_hz = 200.0\nsubgoal_deadline_s = 2.0\n[servo]\ngoal_radius_m = 2.0\nmax_linear_mps = 1.0\n",
+                &sim_tuning::to_toml(&sim_tuning::povnav_servo())?,
             )?;
             stages.push(start_ready("subgoal-selection", &planner, &prefix, &out)?);
             stages.push(start_ready("velocity-servoing", &servo, &prefix, &out)?);

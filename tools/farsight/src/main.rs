@@ -19,6 +19,7 @@ mod demo_sim;
 mod hip_library;
 mod infer;
 mod probe;
+mod sim_tuning;
 
 use clap::{Parser, Subcommand};
 

@@ -4,6 +4,13 @@
 //! interventions (stuck: less than 1 m from where it was 10 s earlier, in
 //! the spirit of HIP's "trapped" rule; a detour away from the goal is not
 //! being stuck; counted once per 10 s window).
+//!
+//! An intervention is also acted on, as the papers' operators did (POVNav and
+//! HIP count interventions and let the trial go on): the robot is carried
+//! `intervention_backup_m` back along its own track, stopped, facing the way
+//! it drove there, so a method that wedged itself against a tree gets another
+//! go instead of spending the rest of the trial pinned. Set the distance to
+//! 0 to only count.
 
 use crate::render::PALETTE;
 use crate::robot::{Robot, RobotLimits};
@@ -14,6 +21,8 @@ pub struct EpisodeConfig {
     pub goal_radius_m: f64,
     pub max_time_s: f64,
     pub stuck_window_s: f64,
+    /// How far back along the track an intervention carries the robot (m).
+    pub intervention_backup_m: f64,
     pub limits: RobotLimits,
 }
 
@@ -23,6 +32,7 @@ impl Default for EpisodeConfig {
             goal_radius_m: 2.0,
             max_time_s: 300.0,
             stuck_window_s: 10.0,
+            intervention_backup_m: 3.0,
             limits: RobotLimits::default(),
         }
     }
@@ -101,8 +111,9 @@ impl Episode {
             let moved = (here[0] - self.window_start.1[0]).hypot(here[1] - self.window_start.1[1]);
             if moved < 1.0 {
                 self.interventions += 1;
+                self.carry_back();
             }
-            self.window_start = (self.time_s, here);
+            self.window_start = (self.time_s, [self.robot.x_m, self.robot.y_m]);
         }
         self.outcome = if d <= self.config.goal_radius_m {
             Outcome::Reached
@@ -112,6 +123,43 @@ impl Episode {
             Outcome::Driving
         };
         self.outcome
+    }
+
+    /// The operator's intervention: back along the track by
+    /// `intervention_backup_m` (to the start at most), stopped, facing along
+    /// the track. The collision count and distance are kept; the carried
+    /// stretch is not driven, so it adds neither distance nor cost.
+    fn carry_back(&mut self) {
+        let back = self.config.intervention_backup_m;
+        if back <= 0.0 || self.track.len() < 2 {
+            return;
+        }
+        let here = [self.robot.x_m, self.robot.y_m];
+        let mut i = self.track.len() - 1;
+        while i > 0 {
+            let p = self.track[i];
+            if (p[0] - here[0]).hypot(p[1] - here[1]) >= back {
+                break;
+            }
+            i -= 1;
+        }
+        let to = self.track[i];
+        let next = self.track[(i + 1).min(self.track.len() - 1)];
+        let yaw = if next != to {
+            (next[1] - to[1]).atan2(next[0] - to[0])
+        } else {
+            self.robot.yaw_rad
+        };
+        let (collisions, distance_m, cost) = (
+            self.robot.collisions,
+            self.robot.distance_m,
+            self.robot.traversal_cost_s,
+        );
+        self.robot = Robot::at([to[0], to[1], yaw]);
+        self.robot.collisions = collisions;
+        self.robot.distance_m = distance_m;
+        self.robot.traversal_cost_s = cost;
+        self.track.push(to);
     }
 
     pub fn summary(&self) -> Summary {
@@ -166,6 +214,33 @@ impl Episode {
     }
 }
 
+/// The robot's pose after every step, as CSV (`t_s,x_m,y_m,yaw_rad`, each
+/// float written so it reads back bit for bit): the trace two runs are
+/// compared by. Written as the drive goes, so a killed run keeps its trace.
+pub struct PoseLog {
+    out: std::io::BufWriter<std::fs::File>,
+}
+
+impl PoseLog {
+    pub fn create(path: &std::path::Path) -> std::io::Result<Self> {
+        use std::io::Write;
+        let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
+        writeln!(out, "t_s,x_m,y_m,yaw_rad")?;
+        Ok(Self { out })
+    }
+
+    pub fn record(&mut self, e: &Episode) -> std::io::Result<()> {
+        use std::io::Write;
+        let r = &e.robot;
+        writeln!(self.out, "{},{},{},{}", e.time_s, r.x_m, r.y_m, r.yaw_rad)
+    }
+
+    pub fn flush(&mut self) -> std::io::Result<()> {
+        use std::io::Write;
+        self.out.flush()
+    }
+}
+
 fn goal_distance(r: &Robot, s: &Scenario) -> f64 {
     (s.goal[0] - r.x_m).hypot(s.goal[1] - r.y_m)
 }
@@ -201,7 +276,9 @@ mod tests {
     #[test]
     fn a_straight_drive_reaches_an_open_goal_and_a_blocked_one_counts_interventions() {
         // Straight into bug-trap's wall (34 m ahead, reached after ~18 s):
-        // the 10 s windows from 20 s and 30 s show no progress.
+        // the 10 s window from 20 s shows no progress, so at 30 s the
+        // operator carries the robot 3 m back; it drives those 3 m again
+        // (the window from 30 s has progress) and is pinned once more.
         let s = scenario("bug-trap", 1).unwrap();
         let cfg = EpisodeConfig {
             max_time_s: 45.0,
@@ -211,8 +288,16 @@ mod tests {
         while e.step((2.0, 0.0), 0.1) == Outcome::Driving {}
         let sum = e.summary();
         assert_eq!(sum.outcome, Outcome::TimedOut);
-        assert!(sum.collisions > 0 && sum.interventions >= 2, "{sum:?}");
-        assert!(sum.distance_m > 30.0 && sum.distance_m < 36.0, "{sum:?}");
+        assert!(sum.collisions > 0 && sum.interventions == 1, "{sum:?}");
+        assert!(sum.distance_m > 36.0 && sum.distance_m < 40.0, "{sum:?}");
+        let wall_x = e.track.iter().map(|p| p[0]).fold(0.0, f64::max);
+        let at_wall = e.track.iter().position(|p| p[0] == wall_x).unwrap();
+        assert!(
+            e.track[at_wall..]
+                .iter()
+                .any(|p| (wall_x - p[0] - 3.0).abs() < 0.3),
+            "after the wall at x = {wall_x}, carried 3 m back"
+        );
 
         // An open field: straight to the goal 60 m away at up to 2 m/s.
         let mut open = scenario("bug-trap", 1).unwrap();

@@ -12,7 +12,7 @@
 //! navigability of road, trail, grass and field), standing in for the
 //! inference stage; it is a named mode, never the default.
 
-use crate::episode::{Episode, EpisodeConfig, Outcome, Summary};
+use crate::episode::{Episode, EpisodeConfig, Outcome, PoseLog, Summary};
 use crate::render::{Frame, Renderer};
 use crate::scenario::scenario;
 use crate::sensor::NearFieldSensor;
@@ -62,9 +62,16 @@ pub struct RunArgs {
     pub out: PathBuf,
 }
 
-/// The default simulated camera: 90 degree pinhole, 1 m up, level.
+/// The default simulated camera's horizontal field of view. Wide, as on
+/// the papers' field robots: at 90 degrees a tree beside the robot leaves
+/// the view while the robot is still passing it, and the level camera sees
+/// no ground nearer than 1.8 m; at 120 degrees that is 1.0 m.
+pub const FRONT_HFOV_DEG: f64 = 120.0;
+
+/// The default simulated camera: a level pinhole with [`FRONT_HFOV_DEG`],
+/// 1 m up.
 pub fn front_camera(width: u32, height: u32) -> Camera {
-    let f = width as f64 / 2.0;
+    let f = width as f64 / 2.0 / (FRONT_HFOV_DEG.to_radians() / 2.0).tan();
     Camera::new(
         0,
         "front",
@@ -78,6 +85,12 @@ pub fn front_camera(width: u32, height: u32) -> Camera {
         ),
         Mount::from_xyz_rpy_deg([0.0, 0.0, 1.0], [0.0; 3]),
     )
+}
+
+/// A frame's capture time on the simulated clock (the stamps' time base,
+/// which the servo's `clock = "stamps"` measures its ramps on).
+pub fn capture_time_ns(time_s: f64) -> u64 {
+    (time_s * 1e9) as u64
 }
 
 /// Classes a ground robot may drive on (the oracle's navigability).
@@ -131,13 +144,16 @@ pub fn run(a: RunArgs) -> Result<Summary> {
         ..Default::default()
     };
     let mut episode = Episode::new(s, cfg);
+    let trace_path = a.out.join("poses.csv");
+    let mut trace = PoseLog::create(&trace_path)
+        .with_context(|| format!("creating {}", trace_path.display()))?;
     let dt = 1.0 / a.rate_hz;
     let mut frame = Frame::default();
     let mut late = 0u32;
     let wall_start = Instant::now();
     for k in 1u64.. {
         let r = episode.robot;
-        let stamp = Stamp::new(k, (episode.time_s * 1e9) as u64);
+        let stamp = Stamp::new(k, capture_time_ns(episode.time_s));
         renderer.render(&episode.scenario.world, r.pose(), &mut frame);
         infos.publish(&cam.to_info(stamp))?;
         poses.publish(&Pose {
@@ -203,7 +219,9 @@ pub fn run(a: RunArgs) -> Result<Summary> {
             }
         };
         let outcome = episode.step((v, w_), dt);
+        trace.record(&episode)?;
         if k % (5.0 * a.rate_hz).max(1.0) as u64 == 0 {
+            trace.flush()?;
             eprintln!(
                 "t {:6.1} s  goal {:6.1} m  v {:4.2} m/s  collisions {}  interventions {}  (wall {:.0} s)",
                 episode.time_s,
@@ -218,6 +236,7 @@ pub fn run(a: RunArgs) -> Result<Summary> {
             break;
         }
     }
+    trace.flush()?;
     let summary = episode.summary();
     let (mw, mh, cells) = episode.map_rgb();
     // Small scenario maps are scaled up (whole pixels per cell) to be readable.

@@ -1,0 +1,50 @@
+//! The stage configs the simulator runs POVNav with, in one place: the demo
+//! writes them as the stages' TOML files and the navigation benchmark runs
+//! the same library code with the same values, so a benchmark trial and a
+//! demo run of the same seed drive the same track.
+//!
+//! What differs from the stages' defaults, and why:
+//! - POVNav's desired proximity (the paper's lambda* = 50 px) is for its
+//!   robot's camera; on the simulator's 640x360, 120 degree camera a horizon
+//!   pixel 20 px above the bottom centre is 1.2 m ahead, which is where the
+//!   robot should stop closing in.
+//! - The safety margin beside the footprint is 0.35 m: trees that have left
+//!   the view beside the robot are still passed with room.
+//! - The servo runs on the inputs' capture times (`clock = "stamps"`), one
+//!   command per frame, so the simulated run is deterministic.
+
+use farsight_subgoal_selection::stage::SubgoalStageConfig;
+use farsight_velocity_servoing::stage::{ClockSource, ServoStageConfig};
+
+/// Camera frames (and control steps) per second of simulated time.
+pub const RATE_HZ: f64 = 10.0;
+
+/// The simulator's image size: the benchmark renders what the demo renders.
+pub const IMAGE_SIZE: (u32, u32) = (640, 360);
+
+pub fn povnav_subgoal_selection() -> SubgoalStageConfig {
+    SubgoalStageConfig {
+        method: "povnav".into(),
+        camera: "front".into(),
+        safety_margin_m: 0.35,
+        ..Default::default()
+    }
+}
+
+pub fn povnav_servo() -> ServoStageConfig {
+    let mut c = ServoStageConfig {
+        output_rate_hz: RATE_HZ,
+        clock: ClockSource::Stamps,
+        subgoal_deadline_s: 2.0,
+        ..Default::default()
+    };
+    c.servo.desired_proximity_px = 20.0;
+    c.servo.max_linear_mps = 1.5;
+    c.servo.goal_radius_m = 2.0;
+    c
+}
+
+/// A config as the TOML file a stage reads.
+pub fn to_toml<T: serde::Serialize>(config: &T) -> anyhow::Result<String> {
+    Ok(toml::to_string(config)?)
+}
