@@ -5,10 +5,11 @@
 //! far-field" baseline) gets out of LRN's bug trap, since D* Lite replans
 //! as the walls come into view.
 //!
-//! POVNav's graph (inference on the rendered RGB or the simulator's class
-//! image -> subgoal-selection -> the servo on the stamps' clock) is exact:
-//! two runs of a seed drive the same track bit for bit, and so does the
-//! navigation benchmark's in-process trial of the same seed.
+//! Every stage of the demo runs on the stamps' clock (one output per input,
+//! time from the capture times), so two runs of a seed drive the same track
+//! bit for bit, with D* Lite as with POVNav (inference on the rendered RGB
+//! -> subgoal-selection -> servo); and the navigation benchmark's
+//! in-process POVNav trial drives the graph's track too.
 
 use farsight_tests::{bin, Namespace, Proc};
 use std::time::Duration;
@@ -21,13 +22,11 @@ fn field<'a>(summary: &'a str, key: &str) -> &'a str {
 }
 
 #[test]
-fn the_demo_escapes_the_bug_trap_with_dstar_lite_on_near_field_sensing() {
+fn the_demo_escapes_the_bug_trap_with_dstar_lite_and_two_runs_drive_the_same_track() {
     assert!(bin("farsight-sim").exists(), "build the workspace first");
     let ns = Namespace::new("bugtrap");
-    let out = ns.write("placeholder", "").with_file_name("demo");
-    let mut demo = Proc::start("farsight", &["demo", "--out", out.to_str().unwrap()], &ns);
-    let code = demo.wait_exit(Duration::from_secs(240));
-    assert_eq!(code, Some(0), "farsight demo:\n{}", demo.stderr_so_far());
+    let out = demo(&ns, "demo", &[]);
+    assert_same_track(&out, &demo(&ns, "again", &[]));
     assert!(out.join("bug-trap-map.png").exists());
     assert!(
         out.join("subgoal-selection.log").exists(),
@@ -43,9 +42,6 @@ fn the_demo_escapes_the_bug_trap_with_dstar_lite_on_near_field_sensing() {
         distance > 70.0,
         "it went round the trap, not through: {distance} m"
     );
-    // Not asserted: two D* Lite runs match only to about a second of sim
-    // time: fusion and the planner publish on wall-clock rates. The POVNav
-    // graph below runs on the stamps' clock and is exact.
 }
 
 /// Runs `farsight demo` with `args` into a fresh folder; returns the folder.
@@ -74,6 +70,11 @@ fn povnav_on_the_rendered_rgb_crosses_the_bush_wall_and_two_runs_drive_the_same_
     assert_eq!(field(&summary, "late_commands"), "0", "{summary}");
     // The inference stage ran (no oracle): its log and config are there.
     assert!(a.join("inference.toml").exists());
+    assert_same_track(&a, &b);
+}
+
+/// Two demo runs' `poses.csv` are the same, byte for byte.
+fn assert_same_track(a: &std::path::Path, b: &std::path::Path) {
     let (ta, tb) = (poses(&a.join("poses.csv")), poses(&b.join("poses.csv")));
     assert!(
         ta.lines().count() > 500,

@@ -100,11 +100,13 @@ fn run() -> Result<()> {
     let mut last_stamp = Stamp::default();
     let period_ns = (1e9 / config.publish_rate_hz) as u64;
     let mut next_publish = clock.now_ns();
+    let stamped = config.clock == farsight_stage::ClockSource::Stamps;
     let mut listeners = vec![polar.listener()];
     listeners.extend(locals.iter().map(|l| l.listener()));
     listeners.extend(frames.iter().map(|f| f.listener()));
     ipc::wait_loop(&listeners, Some(Duration::from_millis(50)), |wake| {
         let now = clock.now_ns();
+        let mut fresh = false;
         if let Ok(Some(p)) = poses.latest() {
             if p.position_m.iter().all(|v| v.is_finite()) && p.yaw_rad.is_finite() {
                 map.recenter(p.position_m[0], p.position_m[1]);
@@ -144,6 +146,7 @@ fn run() -> Result<()> {
                             );
                             map.add_process_noise();
                             last_stamp = h.stamp;
+                            fresh = true;
                             tracing::debug!(?u, "far-field update");
                         }
                     }
@@ -164,6 +167,7 @@ fn run() -> Result<()> {
                         for ((gx, gy), cost) in cells {
                             map.fix_local(gx, gy, cost);
                         }
+                        fresh = true;
                     }
                     Ok(None) => {}
                     Err(e) => health.dropped(&format_args!("{}: {e}", src.name)),
@@ -181,6 +185,7 @@ fn run() -> Result<()> {
                     } else {
                         map.apply_local_costmap(&h, s.data());
                         last_stamp = h.stamp;
+                        fresh = true;
                     }
                 }
                 Ok(None) => {}
@@ -188,7 +193,10 @@ fn run() -> Result<()> {
             },
             Wake::Tick => {}
         }
-        if now >= next_publish && pose.is_some() {
+        // On the stamps' clock every input message gets its maps, so each
+        // frame's costmap is planned on exactly once.
+        let due = if stamped { fresh } else { now >= next_publish };
+        if due && pose.is_some() {
             next_publish = now + period_ns;
             for (layer, publisher) in &outputs {
                 let published = publisher.publish_with(cells, |out| {

@@ -8,6 +8,8 @@
 //! local_costmaps = ["local"]     # near-field costmaps from other systems: costmap/<name>
 //!                                # (NaN cells = not observed; inf = lethal)
 //! publish_rate_hz = 2.0          # costmap/fused, costmap/far_field, costmap/near_field
+//! clock = "wall"                 # "stamps": publish once per input message instead of
+//!                                # at publish_rate_hz (lock-step simulation, replays)
 //! health_rate_hz = 1.0
 //!
 //! [near_field]                   # see farsight_costmap_fusion::near_field::NearFieldConfig
@@ -43,6 +45,7 @@ pub struct FusionStageConfig {
     pub use_far_field: bool,
     pub local_costmaps: Vec<String>,
     pub publish_rate_hz: f64,
+    pub clock: farsight_stage::ClockSource,
     pub health_rate_hz: f64,
     pub near_field: NearFieldConfig,
     pub far_field: FarFieldConfig,
@@ -57,6 +60,7 @@ impl Default for FusionStageConfig {
             use_far_field: true,
             local_costmaps: vec!["local".into()],
             publish_rate_hz: 2.0,
+            clock: Default::default(),
             health_rate_hz: 1.0,
             near_field: NearFieldConfig::default(),
             far_field: FarFieldConfig::default(),

@@ -160,6 +160,20 @@ pub fn load_config<T: DeserializeOwned + Validate + Default>(
     }
 }
 
+/// Where a stage's "now" comes from (its config's `clock` key).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ClockSource {
+    /// The system clock; rate-driven outputs go out at their configured rates.
+    #[default]
+    Wall,
+    /// The newest capture time among the stage's inputs, and one output per
+    /// new input instead of rates: the same inputs give the same outputs
+    /// however fast the machine is (lock-step simulation, replays). Never on
+    /// a robot: with no input, time stands still and nothing goes stale.
+    Stamps,
+}
+
 /// How log lines are written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum LogFormat {

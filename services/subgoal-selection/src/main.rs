@@ -16,6 +16,7 @@ use farsight_interfaces::geo::GoalTracker;
 use farsight_interfaces::msg::*;
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
+use farsight_stage::ClockSource;
 use farsight_stage::{load_config, Health, StageArgs};
 use farsight_subgoal_selection::hip::{choose, LibraryFile, Trajectory};
 use farsight_subgoal_selection::lrn_head::LrnHead;
@@ -368,6 +369,7 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
         |_| {
             let now = clock.now_ns();
             health.tick(now);
+            let mut fresh_costmap = false;
             if let MapPlanner::Hip {
                 model: Some(model),
                 learned,
@@ -438,6 +440,7 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
                         health.dropped(&format_args!("costmap/{}: {e}", config.costmap));
                     } else {
                         stamp = h.stamp;
+                        fresh_costmap = true;
                         match &mut planner {
                             MapPlanner::DStarLite(pl) => {
                                 let pl = pl.as_mut().expect("built above");
@@ -454,7 +457,12 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
                 Ok(None) => {}
                 Err(e) => health.dropped(&e),
             }
-            if !dirty && now < next_plan {
+            let due = match config.clock {
+                // One plan per costmap message: each frame is planned on once.
+                ClockSource::Stamps => fresh_costmap,
+                ClockSource::Wall => dirty || now >= next_plan,
+            };
+            if !due {
                 return ControlFlow::Continue(());
             }
             dirty = false;

@@ -9,6 +9,8 @@
 //!                                # dstar_lite: the subgoal is this far along the path
 //! costmap = "fused"              # dstar_lite, hip: plans on costmap/<costmap>
 //! replan_rate_hz = 2.0           # dstar_lite, hip: at most this often (D* Lite also on each change)
+//! clock = "wall"                 # dstar_lite, hip: "stamps" plans once per costmap message
+//!                                # instead (lock-step simulation, replays)
 //! hip_library = ""               # hip: the trajectory library (`farsight hip-library` writes one)
 //! hip_model = ""                 # hip: model config of the learned density (an output of kind
 //!                                # "trajectory_log_likelihood", classes = library size) run on
@@ -42,6 +44,7 @@ pub struct SubgoalStageConfig {
     pub path_max_range_m: f64,
     pub costmap: String,
     pub replan_rate_hz: f64,
+    pub clock: farsight_stage::ClockSource,
     pub hip_library: std::path::PathBuf,
     pub hip_model: std::path::PathBuf,
     pub health_rate_hz: f64,
@@ -64,6 +67,7 @@ impl Default for SubgoalStageConfig {
             path_max_range_m: 50.0,
             costmap: "fused".into(),
             replan_rate_hz: 2.0,
+            clock: Default::default(),
             hip_library: Default::default(),
             hip_model: Default::default(),
             health_rate_hz: 1.0,

@@ -30,21 +30,9 @@
 //! ```
 
 use crate::ServoConfig;
+pub use farsight_stage::ClockSource;
 use farsight_stage::{ConfigError, Validate};
 use serde::{Deserialize, Serialize};
-
-/// Where the servo's "now" comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum ClockSource {
-    /// The system clock; commands at `output_rate_hz`.
-    #[default]
-    Wall,
-    /// The newest capture time among the inputs; a command per tracked
-    /// input, its ramps measured between their capture times, so the same
-    /// inputs give the same commands however fast the machine is.
-    Stamps,
-}
 
 /// Which input the servo follows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]

@@ -59,17 +59,17 @@ pub fn run(d: SimDemo) -> Result<()> {
             let fusion = write(
                 &out,
                 "costmap-fusion.toml",
-                "width_cells = 121\nheight_cells = 121\npublish_rate_hz = 200.0\n",
+                &sim_tuning::to_toml(&sim_tuning::dstar_costmap_fusion())?,
             )?;
             let planner = write(
                 &out,
                 "subgoal-selection.toml",
-                "method = \"dstar_lite\"\nsubgoal_distance_m = 5.0\nreplan_rate_hz = 20.0\n[planner]\nmargin_m = 30.0\n",
+                &sim_tuning::to_toml(&sim_tuning::dstar_subgoal_selection())?,
             )?;
             let servo = write(
                 &out,
                 "velocity-servoing.toml",
-                "output_rate_hz = 200.0\nsubgoal_deadline_s = 2.0\ntrack = \"path\"\n[servo]\ngoal_radius_m = 2.0\nmax_linear_mps = 1.5\n",
+                &sim_tuning::to_toml(&sim_tuning::dstar_servo())?,
             )?;
             stages.push(start_ready("costmap-fusion", &fusion, &prefix, &out)?);
             stages.push(start_ready("subgoal-selection", &planner, &prefix, &out)?);
