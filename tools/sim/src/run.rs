@@ -14,6 +14,7 @@
 
 use crate::episode::{Episode, EpisodeConfig, Outcome, PoseLog, Summary};
 use crate::render::{Frame, Renderer};
+use crate::rng::SplitMix64;
 use crate::scenario::scenario;
 use crate::sensor::NearFieldSensor;
 use crate::world::class;
@@ -50,6 +51,13 @@ pub struct RunArgs {
     pub width: u32,
     #[arg(long, default_value_t = 360)]
     pub height: u32,
+    /// Standard deviation of the noise on the published position (m), as a
+    /// GPS/odometry error; the robot itself drives the true pose.
+    #[arg(long, default_value_t = 0.0)]
+    pub pose_noise_m: f64,
+    /// Standard deviation of the noise on the published yaw (degrees).
+    #[arg(long, default_value_t = 0.0)]
+    pub yaw_noise_deg: f64,
     /// Publish the rendered class image as perception/front/navigability.
     #[arg(long)]
     pub oracle: bool,
@@ -91,6 +99,25 @@ pub fn front_camera(width: u32, height: u32) -> Camera {
 /// which the servo's `clock = "stamps"` measures its ramps on).
 pub fn capture_time_ns(time_s: f64) -> u64 {
     (time_s * 1e9) as u64
+}
+
+/// The pose the robot reports: the true one plus independent Gaussian noise
+/// on position (`sigma_m` per axis) and yaw, drawn from the run's seeded
+/// generator so a noisy run is still the same for a seed.
+pub fn reported_pose(
+    truth: [f64; 3],
+    sigma_m: f64,
+    sigma_yaw_rad: f64,
+    rng: &mut SplitMix64,
+) -> [f64; 3] {
+    if sigma_m == 0.0 && sigma_yaw_rad == 0.0 {
+        return truth;
+    }
+    [
+        truth[0] + sigma_m * rng.normal(),
+        truth[1] + sigma_m * rng.normal(),
+        truth[2] + sigma_yaw_rad * rng.normal(),
+    ]
 }
 
 /// Classes a ground robot may drive on (the oracle's navigability).
@@ -150,16 +177,29 @@ pub fn run(a: RunArgs) -> Result<Summary> {
     let dt = 1.0 / a.rate_hz;
     let mut frame = Frame::default();
     let mut late = 0u32;
+    anyhow::ensure!(
+        a.pose_noise_m >= 0.0 && a.yaw_noise_deg >= 0.0,
+        "--pose-noise-m {} / --yaw-noise-deg {}: noise must be 0 or more",
+        a.pose_noise_m,
+        a.yaw_noise_deg
+    );
+    let mut noise = SplitMix64::new(a.seed ^ 0x9053);
     let wall_start = Instant::now();
     for k in 1u64.. {
         let r = episode.robot;
         let stamp = Stamp::new(k, capture_time_ns(episode.time_s));
         renderer.render(&episode.scenario.world, r.pose(), &mut frame);
         infos.publish(&cam.to_info(stamp))?;
+        let [px, py, pyaw] = reported_pose(
+            r.pose(),
+            a.pose_noise_m,
+            a.yaw_noise_deg.to_radians(),
+            &mut noise,
+        );
         poses.publish(&Pose {
             stamp,
-            position_m: [r.x_m, r.y_m, 0.0],
-            yaw_rad: r.yaw_rad,
+            position_m: [px, py, 0.0],
+            yaw_rad: pyaw,
             linear_mps: r.linear_mps as f32,
             angular_radps: r.angular_radps as f32,
             ..Default::default()
@@ -273,4 +313,32 @@ pub fn run(a: RunArgs) -> Result<Summary> {
     std::fs::write(a.out.join("summary.toml"), &text)?;
     println!("{text}map: {}", map_path.display());
     Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reported_pose_noise_has_the_asked_spread_and_none_means_the_truth() {
+        let mut rng = SplitMix64::new(4);
+        let truth = [10.0, -5.0, 0.3];
+        assert_eq!(reported_pose(truth, 0.0, 0.0, &mut rng), truth);
+        let n = 4000;
+        let draws: Vec<[f64; 3]> = (0..n)
+            .map(|_| reported_pose(truth, 0.5, 0.05, &mut rng))
+            .collect();
+        for (k, sigma) in [(0, 0.5), (1, 0.5), (2, 0.05)] {
+            let mean = draws.iter().map(|d| d[k]).sum::<f64>() / n as f64;
+            let sd = (draws.iter().map(|d| (d[k] - mean).powi(2)).sum::<f64>() / n as f64).sqrt();
+            assert!(
+                (mean - truth[k]).abs() < 4.0 * sigma / (n as f64).sqrt(),
+                "axis {k}: mean {mean}"
+            );
+            assert!(
+                (sd / sigma - 1.0).abs() < 0.06,
+                "axis {k}: sd {sd} for {sigma}"
+            );
+        }
+    }
 }

@@ -7,7 +7,7 @@
 //! | `bush-wall` | LRN | open field 82 m, a band of bushes across the straight line |
 //! | `road-forest` | FITAM Fig. 1 | forest, a road 60 m to the side that leads to the goal |
 //! | `obstacle-field-1`..`5` | POVNav Env1-Env5 | trees on a jittered grid, gaps 3 m down to 1 m |
-//! | `random` | FITAM | land-cover noise: fields, grass, forest with trees, water, rocks, roads |
+//! | `random` | FITAM | land-cover noise: fields, grass, forest with trees, water, rocks, roads; rolling hills |
 
 use crate::rng::SplitMix64;
 use crate::world::{Cover, Obstacle, World};
@@ -165,14 +165,28 @@ fn value_noise(seed: u64, x: f64, y: f64, scale: f64) -> f64 {
     top * (1.0 - sy) + bottom * sy
 }
 
+/// The hills' largest height in random worlds (m).
+pub const HILL_HEIGHT_M: f64 = 8.0;
+
 /// A FITAM-style random land-cover world of `size` x `size` metres (up to
 /// 5000): fields, grass and forest from noise, lakes, scattered rocks, trees in
 /// the forest, and two roads; start and goal in free cells 100 m from the edge
-/// (or a fifth of the size in small worlds) on opposite sides.
+/// (or a fifth of the size in small worlds) on opposite sides, on rolling
+/// hills up to [`HILL_HEIGHT_M`].
 pub fn random_world(seed: u64, size: usize) -> Scenario {
     let size = size.clamp(50, 5000);
     let mut rng = SplitMix64::new(seed ^ 0xF17A);
     let mut w = World::new(size, size, Cover::Grass);
+    // Rolling hills: up to HILL_HEIGHT_M over a few hundred metres, so the
+    // visual horizon is sometimes a crest rather than an obstacle.
+    let mut ground = Vec::with_capacity(size * size);
+    for y in 0..size {
+        for x in 0..size {
+            let h = value_noise(seed ^ 3, x as f64, y as f64, 150.0);
+            ground.push((HILL_HEIGHT_M * h) as f32);
+        }
+    }
+    w.set_ground(ground);
     for y in 0..size as i64 {
         for x in 0..size as i64 {
             let (fx, fy) = (x as f64, y as f64);
@@ -291,6 +305,22 @@ mod tests {
             .filter_map(|(x, y)| a.world.cover(x, y))
             .collect();
         assert!(covers.len() >= 5, "{covers:?}");
+        let heights: Vec<f32> = (0..300)
+            .flat_map(|x| (0..300).map(move |y| (x, y)))
+            .map(|(x, y)| a.world.ground_m(x, y))
+            .collect();
+        let (lo, hi) = heights
+            .iter()
+            .fold((f32::MAX, f32::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+        assert!(
+            hi - lo > 2.0 && hi <= HILL_HEIGHT_M as f32 && lo >= 0.0,
+            "hills {lo}..{hi}"
+        );
+        let steepest = (1..300)
+            .flat_map(|x| (0..300).map(move |y| (x, y)))
+            .map(|(x, y)| (a.world.ground_m(x, y) - a.world.ground_m(x - 1, y)).abs())
+            .fold(0.0f32, f32::max);
+        assert!(steepest < 0.5, "drivable slopes: {steepest} m per 1 m cell");
         assert!(!a.world.lethal(a.start[0] as i64, a.start[1] as i64));
     }
 }
