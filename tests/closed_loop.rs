@@ -149,3 +149,70 @@ fn a_benchmark_trial_drives_the_same_track_as_the_process_graph() {
     }
     assert_eq!(g.lines().count(), t.lines().count());
 }
+
+#[test]
+fn the_simulator_publishes_every_camera_it_is_asked_for_each_looking_its_own_way() {
+    use farsight_interfaces::topics;
+    use std::time::Instant;
+    let ns = Namespace::new("simcams");
+    let bus = ns.bus("simcams-test");
+    let front = bus
+        .slice_subscriber(&topics::camera_image("front"))
+        .unwrap();
+    let rear = bus.slice_subscriber(&topics::camera_image("rear")).unwrap();
+    let rear_info = bus.subscriber(&topics::camera_info("rear")).unwrap();
+    let out = ns.write("placeholder", "").with_file_name("sim");
+    // No graph answers: each frame waits 50 ms for a command, then drives none.
+    let mut sim = Proc::start(
+        "farsight-sim",
+        &[
+            "run",
+            "--scenario",
+            "bug-trap",
+            "--cameras",
+            "front,rear",
+            "--max-time-s",
+            "1",
+            "--command-timeout-s",
+            "0.05",
+            "--width",
+            "160",
+            "--height",
+            "90",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &ns,
+    );
+    let (mut f, mut r, mut info) = (None, None, None);
+    let end = Instant::now() + Duration::from_secs(20);
+    while Instant::now() < end && (f.is_none() || r.is_none() || info.is_none()) {
+        if let Some(s) = front.latest().unwrap() {
+            f = Some((*s.header(), s.data().to_vec()));
+        }
+        if let Some(s) = rear.latest().unwrap() {
+            r = Some((*s.header(), s.data().to_vec()));
+        }
+        if let Some(i) = rear_info.latest().unwrap() {
+            info = Some(i);
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert_eq!(
+        sim.wait_exit(Duration::from_secs(20)),
+        Some(0),
+        "{}",
+        sim.stderr_so_far()
+    );
+    let ((fh, fd), (rh, rd)) = (f.expect("a front frame"), r.expect("a rear frame"));
+    assert_eq!((rh.width, rh.height, rh.camera_id), (160, 90, 3));
+    assert_eq!(fh.camera_id, 0);
+    // bug-trap: the wall is 35 m ahead, open grass behind; the views differ.
+    assert_ne!(fd, rd);
+    let cam = farsight_interfaces::camera::Camera::from_info(&info.expect("rear info")).unwrap();
+    let bearing = cam.pixel_bearing_rad(cam.model.cx, cam.model.cy).unwrap();
+    assert!(
+        (bearing.abs() - std::f64::consts::PI).abs() < 1e-6,
+        "{bearing}"
+    );
+}

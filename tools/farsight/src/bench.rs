@@ -122,7 +122,7 @@ pub struct NavArgs {
     /// Trials (seeds 1..=N) per scenario and method.
     #[arg(long, default_value_t = 3)]
     pub trials: usize,
-    #[arg(long, value_delimiter = ',', default_values_t = ["bug-trap".to_string(), "bridge".to_string(), "road-forest".to_string(), "obstacle-field-3".to_string()])]
+    #[arg(long, value_delimiter = ',', default_values_t = ["bug-trap".to_string(), "bridge".to_string(), "bush-wall".to_string(), "road-forest".to_string(), "obstacle-field-1".to_string(), "obstacle-field-3".to_string()])]
     pub scenarios: Vec<String>,
     /// Methods to run (default: all).
     #[arg(long, value_delimiter = ',')]

@@ -83,6 +83,8 @@ struct PovnavRig {
     stage: SubgoalStageConfig,
     servo: ServoStageConfig,
     last_ns: Option<u64>,
+    /// Frames rendered and the time spent rendering them.
+    rendered: (u64, std::time::Duration),
 }
 
 impl PovnavRig {
@@ -108,6 +110,7 @@ impl PovnavRig {
             stage,
             servo: sim_tuning::povnav_servo(),
             last_ns: None,
+            rendered: (0, std::time::Duration::ZERO),
         }
     }
 
@@ -121,8 +124,11 @@ impl PovnavRig {
         pog_only: bool,
     ) -> (f64, f64) {
         let r = e.robot;
+        let t = Instant::now();
         self.renderer
             .render(&e.scenario.world, r.pose(), &mut self.frame);
+        self.rendered.0 += 1;
+        self.rendered.1 += t.elapsed();
         let f = &self.frame;
         self.nav.clear();
         self.nav.extend(
@@ -256,6 +262,14 @@ impl Controller {
     }
 }
 
+/// What a trial cost: controller+simulator steps, and the frames the
+/// camera renderer drew with the time it took.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Steps {
+    pub steps: u64,
+    pub rendered: (u64, std::time::Duration),
+}
+
 /// One trial: a method on a scenario and seed, to the goal or the time limit.
 pub fn trial(
     method: &'static str,
@@ -263,7 +277,7 @@ pub fn trial(
     seed: u64,
     max_time_s: f64,
     trace: Option<&std::path::Path>,
-) -> Result<(Summary, u64)> {
+) -> Result<(Summary, Steps)> {
     let mut trace = trace.map(PoseLog::create).transpose()?;
     let s = scenario(scenario_name, seed)?;
     let mut e = Episode::new(
@@ -286,7 +300,8 @@ pub fn trial(
             if let Some(t) = &mut trace {
                 t.flush()?;
             }
-            return Ok((e.summary(), steps));
+            let rendered = c.rig.map_or((0, Default::default()), |r| r.rendered);
+            return Ok((e.summary(), Steps { steps, rendered }));
         }
     }
 }
@@ -331,7 +346,8 @@ pub fn run(a: NavArgs) -> Result<()> {
     if let Some(d) = &a.trace {
         std::fs::create_dir_all(d)?;
     }
-    let (mut steps, t0) = (0u64, Instant::now());
+    let (mut steps, mut frames, mut render_time, t0) =
+        (0u64, 0u64, std::time::Duration::ZERO, Instant::now());
     for sc in &a.scenarios {
         for &m in &methods {
             let mut runs = Vec::new();
@@ -345,7 +361,9 @@ pub fn run(a: NavArgs) -> Result<()> {
                     "  {sc} {m} seed {seed}: {:?} after {:.0} s, {:.0} m",
                     s.outcome, s.time_s, s.distance_m
                 );
-                steps += n;
+                steps += n.steps;
+                frames += n.rendered.0;
+                render_time += n.rendered.1;
                 runs.push(s);
             }
             let ok: Vec<&Summary> = runs
@@ -373,9 +391,16 @@ pub fn run(a: NavArgs) -> Result<()> {
     }
     let wall = t0.elapsed().as_secs_f64();
     println!(
-        "\nsimulation with controllers: {steps} steps in {wall:.1} s ({:.0} steps/s); renderer: see `farsight-sim bench`",
+        "\nsimulation with controllers: {steps} steps in {wall:.1} s ({:.0} steps/s)",
         steps as f64 / wall
     );
+    if frames > 0 {
+        let (w, h) = sim_tuning::IMAGE_SIZE;
+        println!(
+            "camera renderer ({w}x{h}, the POVNav rows): {frames} frames, {:.0} frames/s",
+            frames as f64 / render_time.as_secs_f64()
+        );
+    }
     Ok(())
 }
 

@@ -21,10 +21,10 @@ use crate::world::class;
 use anyhow::{Context, Result};
 use farsight_interfaces::camera::{Camera, CameraModel, Mount};
 use farsight_interfaces::msg::{
-    GoalKind, ImageHeader, NavGoal, PixelEncoding, Pose, Stamp, VelocityCommand,
+    CameraInfo, GoalKind, ImageHeader, NavGoal, PixelEncoding, Pose, Stamp, VelocityCommand,
 };
 use farsight_interfaces::topics;
-use farsight_interfaces::transport::ipc::Bus;
+use farsight_interfaces::transport::ipc::{Bus, Publisher, SlicePublisher};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -58,7 +58,13 @@ pub struct RunArgs {
     /// Standard deviation of the noise on the published yaw (degrees).
     #[arg(long, default_value_t = 0.0)]
     pub yaw_noise_deg: f64,
-    /// Publish the rendered class image as perception/front/navigability.
+    /// Cameras to render and publish, by mount: `front`, `left`, `right`,
+    /// `rear` (the same 120 degree pinhole looking 0, 90, -90, 180 degrees
+    /// from the robot's heading). Each publishes camera/<name>/image, info
+    /// and depth (and navigability with --oracle).
+    #[arg(long, value_delimiter = ',', default_value = "front")]
+    pub cameras: Vec<String>,
+    /// Publish the rendered class image as perception/<camera>/navigability.
     #[arg(long)]
     pub oracle: bool,
     /// Lock-step: how long to wait for the graph's command before driving
@@ -79,10 +85,31 @@ pub const FRONT_HFOV_DEG: f64 = 120.0;
 /// The default simulated camera: a level pinhole with [`FRONT_HFOV_DEG`],
 /// 1 m up.
 pub fn front_camera(width: u32, height: u32) -> Camera {
+    named_camera("front", width, height).expect("front is a known camera")
+}
+
+/// The cameras `farsight-sim run --cameras` knows: name and yaw from the
+/// robot's heading (degrees, counter-clockwise).
+pub const CAMERA_MOUNTS: [(&str, f64); 4] = [
+    ("front", 0.0),
+    ("left", 90.0),
+    ("right", -90.0),
+    ("rear", 180.0),
+];
+
+/// One of [`CAMERA_MOUNTS`] as the simulator's 120 degree pinhole, 1 m up,
+/// with its index as the camera id.
+pub fn named_camera(name: &str, width: u32, height: u32) -> Result<Camera> {
+    let Some(id) = CAMERA_MOUNTS.iter().position(|(n, _)| *n == name) else {
+        anyhow::bail!(
+            "unknown camera {name:?}; the simulator mounts {}",
+            CAMERA_MOUNTS.map(|(n, _)| n).join(", ")
+        );
+    };
     let f = width as f64 / 2.0 / (FRONT_HFOV_DEG.to_radians() / 2.0).tan();
-    Camera::new(
-        0,
-        "front",
+    Ok(Camera::new(
+        id as u32,
+        name,
         CameraModel::pinhole(
             width,
             height,
@@ -91,8 +118,71 @@ pub fn front_camera(width: u32, height: u32) -> Camera {
             (width as f64 - 1.0) / 2.0,
             (height as f64 - 1.0) / 2.0,
         ),
-        Mount::from_xyz_rpy_deg([0.0, 0.0, 1.0], [0.0; 3]),
-    )
+        Mount::from_xyz_rpy_deg([0.0, 0.0, 1.0], [0.0, 0.0, CAMERA_MOUNTS[id].1]),
+    ))
+}
+
+/// One simulated camera: its renderer, its last frame and its publishers.
+struct CameraRig {
+    camera: Camera,
+    renderer: Renderer,
+    frame: Frame,
+    images: SlicePublisher<ImageHeader, u8>,
+    depths: SlicePublisher<ImageHeader, u8>,
+    infos: Publisher<CameraInfo>,
+    oracle: Option<SlicePublisher<ImageHeader, u8>>,
+}
+
+impl CameraRig {
+    fn open(bus: &Bus, camera: Camera, oracle: bool) -> Result<Self> {
+        let (w, h) = (camera.model.width as usize, camera.model.height as usize);
+        let name = camera.name.as_str();
+        Ok(Self {
+            renderer: Renderer::new(&camera, 150.0),
+            frame: Frame::default(),
+            images: bus.slice_publisher(&topics::camera_image(name), w * h * 3)?,
+            depths: bus.slice_publisher(&topics::depth(name), w * h * 4)?,
+            infos: bus.publisher(&topics::camera_info(name))?,
+            oracle: if oracle {
+                Some(bus.slice_publisher(&topics::navigability(name), w * h)?)
+            } else {
+                None
+            },
+            camera,
+        })
+    }
+
+    /// Renders the robot's view and publishes info, depth, the oracle's
+    /// navigability and the image (last: a stage woken by the image finds
+    /// the rest already there). Depth and navigability are written straight
+    /// into the shared-memory samples: no per-frame buffers.
+    fn publish(&mut self, world: &crate::world::World, pose: [f64; 3], stamp: Stamp) -> Result<()> {
+        let (w, h) = (self.camera.model.width, self.camera.model.height);
+        let n = w as usize * h as usize;
+        let id = self.camera.id;
+        self.renderer.render(world, pose, &mut self.frame);
+        self.infos.publish(&self.camera.to_info(stamp))?;
+        let frame = &self.frame;
+        self.depths.publish_with(n * 4, |buf| {
+            for (b, d) in buf.chunks_exact_mut(4).zip(&frame.depth_m) {
+                b.copy_from_slice(&d.to_le_bytes());
+            }
+            ImageHeader::packed(stamp, id, w, h, PixelEncoding::F32)
+        })?;
+        if let Some(o) = &self.oracle {
+            o.publish_with(n, |buf| {
+                for (b, &c) in buf.iter_mut().zip(&frame.class_ids) {
+                    *b = if navigable_class(c) { 255 } else { 0 };
+                }
+                ImageHeader::packed(stamp, id, w, h, PixelEncoding::MONO8)
+            })?;
+        }
+        self.images.publish_copy(
+            ImageHeader::packed(stamp, id, w, h, PixelEncoding::RGB8),
+            &frame.rgb,
+        )?;
+        Ok(())
+    }
 }
 
 /// A frame's capture time on the simulated clock (the stamps' time base,
@@ -128,23 +218,18 @@ pub fn navigable_class(c: u8) -> bool {
 pub fn run(a: RunArgs) -> Result<Summary> {
     let s = scenario(&a.scenario, a.seed)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let cam = front_camera(a.width, a.height);
-    let renderer = Renderer::new(&cam, 150.0);
     let sensor = NearFieldSensor::default();
-    let (w, h) = (a.width as usize, a.height as usize);
     let bus = Bus::open("sim")?;
-    let images = bus.slice_publisher(&topics::camera_image("front"), w * h * 3)?;
-    let depths = bus.slice_publisher(&topics::depth("front"), w * h * 4)?;
-    let infos = bus.publisher(&topics::camera_info("front"))?;
+    anyhow::ensure!(!a.cameras.is_empty(), "--cameras: name at least one camera");
+    let mut rigs = a
+        .cameras
+        .iter()
+        .map(|name| CameraRig::open(&bus, named_camera(name, a.width, a.height)?, a.oracle))
+        .collect::<Result<Vec<_>>>()?;
     let poses = bus.publisher(&topics::pose())?;
     let goals = bus.publisher(&topics::goal())?;
     let side = (2.0 * sensor.range_m + 1.0) as usize;
     let locals = bus.slice_publisher(&topics::costmap("local"), side * side)?;
-    let oracle = if a.oracle {
-        Some(bus.slice_publisher(&topics::navigability("front"), w * h)?)
-    } else {
-        None
-    };
     let commands = bus.subscriber(&topics::velocity_command())?;
     let goal = NavGoal {
         kind: GoalKind::LOCAL,
@@ -175,7 +260,6 @@ pub fn run(a: RunArgs) -> Result<Summary> {
     let mut trace = PoseLog::create(&trace_path)
         .with_context(|| format!("creating {}", trace_path.display()))?;
     let dt = 1.0 / a.rate_hz;
-    let mut frame = Frame::default();
     let mut late = 0u32;
     anyhow::ensure!(
         a.pose_noise_m >= 0.0 && a.yaw_noise_deg >= 0.0,
@@ -188,8 +272,6 @@ pub fn run(a: RunArgs) -> Result<Summary> {
     for k in 1u64.. {
         let r = episode.robot;
         let stamp = Stamp::new(k, capture_time_ns(episode.time_s));
-        renderer.render(&episode.scenario.world, r.pose(), &mut frame);
-        infos.publish(&cam.to_info(stamp))?;
         let [px, py, pyaw] = reported_pose(
             r.pose(),
             a.pose_noise_m,
@@ -206,26 +288,9 @@ pub fn run(a: RunArgs) -> Result<Summary> {
         })?;
         let (lh, lc) = sensor.observe(&episode.scenario.world, r.x_m, r.y_m, stamp);
         locals.publish_copy(lh, &lc)?;
-        // Depth and the oracle's navigability are written straight into the
-        // shared-memory samples: no per-frame buffers.
-        depths.publish_with(w * h * 4, |buf| {
-            for (b, d) in buf.chunks_exact_mut(4).zip(&frame.depth_m) {
-                b.copy_from_slice(&d.to_le_bytes());
-            }
-            ImageHeader::packed(stamp, 0, a.width, a.height, PixelEncoding::F32)
-        })?;
-        if let Some(o) = &oracle {
-            o.publish_with(w * h, |buf| {
-                for (b, &c) in buf.iter_mut().zip(&frame.class_ids) {
-                    *b = if navigable_class(c) { 255 } else { 0 };
-                }
-                ImageHeader::packed(stamp, 0, a.width, a.height, PixelEncoding::MONO8)
-            })?;
+        for rig in &mut rigs {
+            rig.publish(&episode.scenario.world, r.pose(), stamp)?;
         }
-        images.publish_copy(
-            ImageHeader::packed(stamp, 0, a.width, a.height, PixelEncoding::RGB8),
-            &frame.rgb,
-        )?;
         goals.deliver_history()?;
 
         let command = match a.clock {
