@@ -5,6 +5,7 @@
 //! Sensor streams have latest-value semantics: a slow consumer skips to the
 //! newest message and the skipped ones are counted, never queued.
 
+pub mod any;
 pub mod ipc;
 pub mod net;
 pub mod wire;

@@ -32,8 +32,9 @@
 //! ```
 
 use farsight_interfaces::msg::*;
-use farsight_interfaces::topics::{self, kind_of, Topic, TopicKind};
-use farsight_interfaces::transport::ipc::{self, Bus, IpcHeader, IpcMessage};
+use farsight_interfaces::topics::{self, kind_of, TopicKind};
+use farsight_interfaces::transport::any::{AnyPublisher, AnySubscriber};
+use farsight_interfaces::transport::ipc::{self, Bus};
 use farsight_interfaces::transport::net::{NetBus, RawPublisher, RawSubscriber};
 use farsight_interfaces::transport::{wire, TransportError};
 use farsight_stage::{ConfigError, Validate};
@@ -279,76 +280,9 @@ pub struct LinkStats {
 /// One exported topic: an iceoryx2 subscriber feeding a zenoh publisher.
 pub struct Export {
     cfg: ExportConfig,
-    source: Source,
+    source: AnySubscriber,
     out: RawPublisher,
     state: RefCell<(Option<u64>, LinkStats)>,
-}
-
-enum Source {
-    Image(ipc::SliceSubscriber<ImageHeader, u8>),
-    Tensor(ipc::SliceSubscriber<TensorHeader, f32>),
-    Polar(ipc::SliceSubscriber<PolarBinsHeader, PolarCell>),
-    Costmap(ipc::SliceSubscriber<CostmapHeader, CostCell>),
-    Fixed(Box<dyn FixedSource>),
-}
-
-trait FixedSource {
-    fn listener(&self) -> &ipc::InputListener;
-    fn take(&self) -> Result<Option<(Stamp, Vec<u8>)>, TransportError>;
-}
-
-struct Fixed<M: IpcMessage + Serialize>(ipc::Subscriber<M>);
-
-impl<M: IpcMessage + Serialize> FixedSource for Fixed<M> {
-    fn listener(&self) -> &ipc::InputListener {
-        self.0.listener()
-    }
-    fn take(&self) -> Result<Option<(Stamp, Vec<u8>)>, TransportError> {
-        match self.0.latest()? {
-            None => Ok(None),
-            Some(m) => {
-                let bytes = wire::encode_message(&m).map_err(|source| TransportError::Decode {
-                    topic: self.0.topic().to_string(),
-                    source,
-                })?;
-                Ok(Some((m.stamp(), bytes)))
-            }
-        }
-    }
-}
-
-fn fixed<M: IpcMessage + Serialize>(bus: &Bus, name: &str) -> Result<Source, TransportError> {
-    let topic = Topic::<M>::new(name).map_err(|e| TransportError::Setting {
-        key: "topic",
-        value: name.into(),
-        expected: e.why,
-    })?;
-    Ok(Source::Fixed(Box::new(Fixed(bus.subscriber(&topic)?))))
-}
-
-fn slice_topic<H, E>(name: &str) -> Result<Topic<topics::Slice<H, E>>, TransportError> {
-    Topic::new(name).map_err(|e| TransportError::Setting {
-        key: "topic",
-        value: name.into(),
-        expected: e.why,
-    })
-}
-
-fn encode<H: IpcHeader + Serialize, E: ipc::IpcElem>(
-    sub: &ipc::SliceSubscriber<H, E>,
-) -> Result<Option<(Stamp, Vec<u8>)>, TransportError> {
-    match sub.latest()? {
-        None => Ok(None),
-        Some(s) => {
-            let bytes = wire::encode_slice(s.header(), s.data()).map_err(|source| {
-                TransportError::Decode {
-                    topic: sub.topic().to_string(),
-                    source,
-                }
-            })?;
-            Ok(Some((s.header().stamp(), bytes)))
-        }
-    }
 }
 
 impl Export {
@@ -359,21 +293,7 @@ impl Export {
             value: name.into(),
             expected: "a farsight topic",
         })?;
-        let source = match kind {
-            TopicKind::Image => Source::Image(bus.slice_subscriber(&slice_topic(name)?)?),
-            TopicKind::Tensor => Source::Tensor(bus.slice_subscriber(&slice_topic(name)?)?),
-            TopicKind::PolarBins => Source::Polar(bus.slice_subscriber(&slice_topic(name)?)?),
-            TopicKind::Costmap => Source::Costmap(bus.slice_subscriber(&slice_topic(name)?)?),
-            TopicKind::CameraInfo => fixed::<CameraInfo>(bus, name)?,
-            TopicKind::AngularBins => fixed::<AngularBins>(bus, name)?,
-            TopicKind::Subgoal => fixed::<Subgoal>(bus, name)?,
-            TopicKind::Path => fixed::<Path>(bus, name)?,
-            TopicKind::Goal => fixed::<NavGoal>(bus, name)?,
-            TopicKind::Pose => fixed::<Pose>(bus, name)?,
-            TopicKind::VelocityCommand => fixed::<VelocityCommand>(bus, name)?,
-            TopicKind::EStop => fixed::<EStop>(bus, name)?,
-            TopicKind::Health => fixed::<StageHealth>(bus, name)?,
-        };
+        let source = AnySubscriber::open(bus, name)?;
         // Camera streams may be dropped under congestion; everything else must arrive.
         let out = net.bytes_publisher(name, kind == TopicKind::Image)?;
         Ok(Self {
@@ -385,13 +305,7 @@ impl Export {
     }
 
     pub fn listener(&self) -> &ipc::InputListener {
-        match &self.source {
-            Source::Image(s) => s.listener(),
-            Source::Tensor(s) => s.listener(),
-            Source::Polar(s) => s.listener(),
-            Source::Costmap(s) => s.listener(),
-            Source::Fixed(s) => s.listener(),
-        }
+        self.source.listener()
     }
 
     pub fn topic(&self) -> &str {
@@ -405,7 +319,7 @@ impl Export {
     /// Forwards the newest message, if any and if the rate cap allows.
     pub fn pump(&self, now_ns: u64) -> Result<bool, anyhow::Error> {
         let taken = match &self.source {
-            Source::Image(s) => match s.latest()? {
+            AnySubscriber::Image(s) => match s.latest()? {
                 None => None,
                 Some(frame) => {
                     let (h, d) = transform_image(&self.cfg, frame.header(), frame.data())?;
@@ -413,10 +327,7 @@ impl Export {
                     Some((h.stamp, bytes))
                 }
             },
-            Source::Tensor(s) => encode(s)?,
-            Source::Polar(s) => encode(s)?,
-            Source::Costmap(s) => encode(s)?,
-            Source::Fixed(s) => s.take()?,
+            other => other.take_wire()?,
         };
         let Some((_stamp, bytes)) = taken else {
             return Ok(false);
@@ -447,66 +358,21 @@ impl Export {
 pub struct Import {
     topic: String,
     input: RawSubscriber,
-    sink: Box<dyn FixedSink>,
+    sink: AnyPublisher,
     pub stats: LinkStats,
-}
-
-trait FixedSink {
-    fn publish_bytes(&mut self, bytes: &[u8]) -> Result<(), TransportError>;
-    /// Hands the last message to stages that joined since (a restarted stage
-    /// still learns the current goal).
-    fn deliver_history(&self) -> Result<(), TransportError>;
-}
-
-struct Sink<M: IpcMessage + serde::de::DeserializeOwned>(ipc::Publisher<M>);
-
-impl<M: IpcMessage + serde::de::DeserializeOwned> FixedSink for Sink<M> {
-    fn publish_bytes(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
-        let m: M = wire::decode_message(bytes).map_err(|source| TransportError::Decode {
-            topic: self.0.topic().to_string(),
-            source,
-        })?;
-        self.0.publish(&m)
-    }
-
-    fn deliver_history(&self) -> Result<(), TransportError> {
-        self.0.deliver_history()
-    }
-}
-
-fn sink<M: IpcMessage + serde::de::DeserializeOwned>(
-    bus: &Bus,
-    name: &str,
-) -> Result<Box<dyn FixedSink>, TransportError> {
-    let topic = Topic::<M>::new(name).map_err(|e| TransportError::Setting {
-        key: "topic",
-        value: name.into(),
-        expected: e.why,
-    })?;
-    Ok(Box::new(Sink(bus.publisher(&topic)?)))
 }
 
 impl Import {
     pub fn open(bus: &Bus, net: &NetBus, cfg: &ImportConfig) -> Result<Self, TransportError> {
         let name = cfg.topic.as_str();
-        let sink = match kind_of(name) {
-            Some(TopicKind::Pose) => sink::<Pose>(bus, name)?,
-            Some(TopicKind::Goal) => sink::<NavGoal>(bus, name)?,
-            Some(TopicKind::EStop) => sink::<EStop>(bus, name)?,
-            Some(TopicKind::VelocityCommand) => sink::<VelocityCommand>(bus, name)?,
-            Some(TopicKind::Health) => sink::<StageHealth>(bus, name)?,
-            Some(TopicKind::CameraInfo) => sink::<CameraInfo>(bus, name)?,
-            Some(TopicKind::Subgoal) => sink::<Subgoal>(bus, name)?,
-            Some(TopicKind::Path) => sink::<Path>(bus, name)?,
-            Some(TopicKind::AngularBins) => sink::<AngularBins>(bus, name)?,
-            _ => {
-                return Err(TransportError::Setting {
-                    key: "import.topic",
-                    value: name.into(),
-                    expected: "a fixed-size farsight topic",
-                })
-            }
-        };
+        if !kind_of(name).is_some_and(importable) {
+            return Err(TransportError::Setting {
+                key: "import.topic",
+                value: name.into(),
+                expected: "a fixed-size farsight topic",
+            });
+        }
+        let sink = AnyPublisher::open(bus, name, 0)?;
         Ok(Self {
             topic: name.to_string(),
             input: net.bytes_subscriber(name)?,
@@ -526,8 +392,8 @@ impl Import {
             self.sink.deliver_history()?;
             return Ok(false);
         };
-        match self.sink.publish_bytes(&bytes) {
-            Ok(()) => {
+        match self.sink.publish_wire(&bytes) {
+            Ok(_) => {
                 self.stats.forwarded += 1;
                 Ok(true)
             }

@@ -1,0 +1,277 @@
+//! Ports for topics known only by name at run time: the bridge, the recorder
+//! and the replayer move any farsight topic without a type parameter. The
+//! topic's name picks the message type ([`crate::topics::kind_of`]); what
+//! crosses the port is the [`super::wire`] encoding, so the bytes a recorder
+//! stores are the bytes the bridge sends over zenoh.
+//!
+//! ```no_run
+//! use farsight_interfaces::transport::any::{AnyPublisher, AnySubscriber};
+//! use farsight_interfaces::transport::ipc::Bus;
+//!
+//! let bus = Bus::open("tap")?;
+//! let pose = AnySubscriber::open(&bus, "state/pose")?;
+//! let mut copy = AnyPublisher::open(&bus, "state/pose", 0)?;
+//! if let Some((stamp, bytes)) = pose.take_wire()? {
+//!     copy.publish_wire(&bytes)?;
+//!     println!("forwarded frame {}", stamp.frame_seq);
+//! }
+//! # Ok::<(), farsight_interfaces::transport::TransportError>(())
+//! ```
+
+use super::ipc::{Bus, InputListener, IpcHeader, IpcMessage, Publisher, SlicePublisher};
+use super::ipc::{SliceSubscriber, Subscriber};
+use super::{wire, SkipCounter, TransportError};
+use crate::msg::*;
+use crate::topics::{kind_of, Slice, Topic, TopicKind};
+use serde::de::DeserializeOwned;
+use serde::Serialize;
+
+fn topic<M: ?Sized>(name: &str) -> Result<Topic<M>, TransportError> {
+    Topic::new(name).map_err(|e| TransportError::Setting {
+        key: "topic",
+        value: name.into(),
+        expected: e.why,
+    })
+}
+
+fn kind(name: &str) -> Result<TopicKind, TransportError> {
+    kind_of(name).ok_or_else(|| TransportError::Setting {
+        key: "topic",
+        value: name.into(),
+        expected: "a farsight topic (see farsight_interfaces::topics)",
+    })
+}
+
+fn decode_err(topic: &str) -> impl FnOnce(wire::WireError) -> TransportError + '_ {
+    move |source| TransportError::Decode {
+        topic: topic.to_string(),
+        source,
+    }
+}
+
+/// A fixed-size message subscriber behind a trait object.
+pub trait FixedSubscriber {
+    fn listener(&self) -> &InputListener;
+    fn take_wire(&self) -> Result<Option<(Stamp, Vec<u8>)>, TransportError>;
+    fn skips(&self) -> SkipCounter;
+}
+
+impl<M: IpcMessage + Serialize> FixedSubscriber for Subscriber<M> {
+    fn listener(&self) -> &InputListener {
+        Subscriber::listener(self)
+    }
+    fn take_wire(&self) -> Result<Option<(Stamp, Vec<u8>)>, TransportError> {
+        match self.latest()? {
+            None => Ok(None),
+            Some(m) => {
+                let bytes = wire::encode_message(&m).map_err(decode_err(self.topic()))?;
+                Ok(Some((m.stamp(), bytes)))
+            }
+        }
+    }
+    fn skips(&self) -> SkipCounter {
+        Subscriber::skips(self)
+    }
+}
+
+/// The latest-value subscriber of any topic, by kind.
+pub enum AnySubscriber {
+    Image(SliceSubscriber<ImageHeader, u8>),
+    Tensor(SliceSubscriber<TensorHeader, f32>),
+    Polar(SliceSubscriber<PolarBinsHeader, PolarCell>),
+    Costmap(SliceSubscriber<CostmapHeader, CostCell>),
+    Fixed(Box<dyn FixedSubscriber>),
+}
+
+fn fixed_sub<M: IpcMessage + Serialize>(
+    bus: &Bus,
+    name: &str,
+) -> Result<AnySubscriber, TransportError> {
+    Ok(AnySubscriber::Fixed(Box::new(bus.subscriber(&topic::<
+        M,
+    >(
+        name
+    )?)?)))
+}
+
+fn slice_wire<H: IpcHeader + Serialize, E: super::ipc::IpcElem>(
+    sub: &SliceSubscriber<H, E>,
+) -> Result<Option<(Stamp, Vec<u8>)>, TransportError> {
+    match sub.latest()? {
+        None => Ok(None),
+        Some(s) => {
+            let bytes =
+                wire::encode_slice(s.header(), s.data()).map_err(decode_err(sub.topic()))?;
+            Ok(Some((s.header().stamp(), bytes)))
+        }
+    }
+}
+
+impl AnySubscriber {
+    /// Subscribes to the topic `name`; an unknown name is refused, naming it.
+    pub fn open(bus: &Bus, name: &str) -> Result<Self, TransportError> {
+        Ok(match kind(name)? {
+            TopicKind::Image => Self::Image(bus.slice_subscriber(&topic::<Slice<_, _>>(name)?)?),
+            TopicKind::Tensor => Self::Tensor(bus.slice_subscriber(&topic::<Slice<_, _>>(name)?)?),
+            TopicKind::PolarBins => {
+                Self::Polar(bus.slice_subscriber(&topic::<Slice<_, _>>(name)?)?)
+            }
+            TopicKind::Costmap => {
+                Self::Costmap(bus.slice_subscriber(&topic::<Slice<_, _>>(name)?)?)
+            }
+            TopicKind::CameraInfo => fixed_sub::<CameraInfo>(bus, name)?,
+            TopicKind::AngularBins => fixed_sub::<AngularBins>(bus, name)?,
+            TopicKind::Subgoal => fixed_sub::<Subgoal>(bus, name)?,
+            TopicKind::Path => fixed_sub::<Path>(bus, name)?,
+            TopicKind::Goal => fixed_sub::<NavGoal>(bus, name)?,
+            TopicKind::Pose => fixed_sub::<Pose>(bus, name)?,
+            TopicKind::VelocityCommand => fixed_sub::<VelocityCommand>(bus, name)?,
+            TopicKind::EStop => fixed_sub::<EStop>(bus, name)?,
+            TopicKind::Health => fixed_sub::<StageHealth>(bus, name)?,
+        })
+    }
+
+    /// The listener to attach to a WaitSet.
+    pub fn listener(&self) -> &InputListener {
+        match self {
+            Self::Image(s) => s.listener(),
+            Self::Tensor(s) => s.listener(),
+            Self::Polar(s) => s.listener(),
+            Self::Costmap(s) => s.listener(),
+            Self::Fixed(s) => s.listener(),
+        }
+    }
+
+    /// The newest message since the last call, wire-encoded, with its stamp.
+    pub fn take_wire(&self) -> Result<Option<(Stamp, Vec<u8>)>, TransportError> {
+        match self {
+            Self::Image(s) => slice_wire(s),
+            Self::Tensor(s) => slice_wire(s),
+            Self::Polar(s) => slice_wire(s),
+            Self::Costmap(s) => slice_wire(s),
+            Self::Fixed(s) => s.take_wire(),
+        }
+    }
+
+    /// Messages latest-value delivery skipped (gaps in the sequence numbers).
+    pub fn skips(&self) -> SkipCounter {
+        match self {
+            Self::Image(s) => s.skips(),
+            Self::Tensor(s) => s.skips(),
+            Self::Polar(s) => s.skips(),
+            Self::Costmap(s) => s.skips(),
+            Self::Fixed(s) => s.skips(),
+        }
+    }
+}
+
+/// A fixed-size message publisher behind a trait object.
+pub trait FixedPublisher {
+    fn publish_wire(&mut self, bytes: &[u8]) -> Result<Stamp, TransportError>;
+    /// Hands the last message to subscribers that joined since.
+    fn deliver_history(&self) -> Result<(), TransportError>;
+}
+
+impl<M: IpcMessage + DeserializeOwned> FixedPublisher for Publisher<M> {
+    fn publish_wire(&mut self, bytes: &[u8]) -> Result<Stamp, TransportError> {
+        let m: M = wire::decode_message(bytes).map_err(decode_err(self.topic()))?;
+        self.publish(&m)?;
+        Ok(m.stamp())
+    }
+    fn deliver_history(&self) -> Result<(), TransportError> {
+        Publisher::deliver_history(self)
+    }
+}
+
+/// The publisher of any topic, by kind, fed wire-encoded messages.
+pub enum AnyPublisher {
+    Image(SlicePublisher<ImageHeader, u8>),
+    Tensor(SlicePublisher<TensorHeader, f32>),
+    Polar(SlicePublisher<PolarBinsHeader, PolarCell>),
+    Costmap(SlicePublisher<CostmapHeader, CostCell>),
+    Fixed(Box<dyn FixedPublisher>),
+}
+
+fn fixed_pub<M: IpcMessage + DeserializeOwned>(
+    bus: &Bus,
+    name: &str,
+) -> Result<AnyPublisher, TransportError> {
+    Ok(AnyPublisher::Fixed(Box::new(
+        bus.publisher(&topic::<M>(name)?)?,
+    )))
+}
+
+fn publish_slice<H: IpcHeader + DeserializeOwned, E: super::ipc::IpcElem>(
+    p: &SlicePublisher<H, E>,
+    bytes: &[u8],
+) -> Result<Stamp, TransportError> {
+    let (header, body) = wire::split_slice::<H>(bytes).map_err(decode_err(p.topic()))?;
+    let elem = core::mem::size_of::<E>();
+    if body.len() % elem != 0 {
+        return Err(decode_err(p.topic())(wire::WireError::RaggedSlice {
+            len: body.len(),
+            elem,
+        }));
+    }
+    // Copied straight into the shared-memory sample, which is aligned for E.
+    p.publish_with(body.len() / elem, |out| {
+        bytemuck::cast_slice_mut::<E, u8>(out).copy_from_slice(body);
+        header
+    })?;
+    Ok(header.stamp())
+}
+
+impl AnyPublisher {
+    /// A publisher for the topic `name`. Slice topics (images, tensors,
+    /// bins, costmaps) allocate room for `max_slice_bytes` of elements up
+    /// front; fixed-size topics ignore it.
+    pub fn open(bus: &Bus, name: &str, max_slice_bytes: usize) -> Result<Self, TransportError> {
+        let elems = |size: usize| (max_slice_bytes / size).max(1);
+        Ok(match kind(name)? {
+            TopicKind::Image => {
+                Self::Image(bus.slice_publisher(&topic::<Slice<_, _>>(name)?, elems(1))?)
+            }
+            TopicKind::Tensor => {
+                Self::Tensor(bus.slice_publisher(&topic::<Slice<_, _>>(name)?, elems(4))?)
+            }
+            TopicKind::PolarBins => Self::Polar(bus.slice_publisher(
+                &topic::<Slice<_, _>>(name)?,
+                elems(core::mem::size_of::<PolarCell>()),
+            )?),
+            TopicKind::Costmap => Self::Costmap(bus.slice_publisher(
+                &topic::<Slice<_, _>>(name)?,
+                elems(core::mem::size_of::<CostCell>()),
+            )?),
+            TopicKind::CameraInfo => fixed_pub::<CameraInfo>(bus, name)?,
+            TopicKind::AngularBins => fixed_pub::<AngularBins>(bus, name)?,
+            TopicKind::Subgoal => fixed_pub::<Subgoal>(bus, name)?,
+            TopicKind::Path => fixed_pub::<Path>(bus, name)?,
+            TopicKind::Goal => fixed_pub::<NavGoal>(bus, name)?,
+            TopicKind::Pose => fixed_pub::<Pose>(bus, name)?,
+            TopicKind::VelocityCommand => fixed_pub::<VelocityCommand>(bus, name)?,
+            TopicKind::EStop => fixed_pub::<EStop>(bus, name)?,
+            TopicKind::Health => fixed_pub::<StageHealth>(bus, name)?,
+        })
+    }
+
+    /// Decodes one wire-encoded message and publishes it; returns its stamp.
+    /// Bytes that do not decode as this topic's type are refused, naming it.
+    pub fn publish_wire(&mut self, bytes: &[u8]) -> Result<Stamp, TransportError> {
+        match self {
+            Self::Image(p) => publish_slice(p, bytes),
+            Self::Tensor(p) => publish_slice(p, bytes),
+            Self::Polar(p) => publish_slice(p, bytes),
+            Self::Costmap(p) => publish_slice(p, bytes),
+            Self::Fixed(p) => p.publish_wire(bytes),
+        }
+    }
+
+    /// Hands the last fixed-size message to subscribers that joined since
+    /// (slice topics keep no history).
+    pub fn deliver_history(&self) -> Result<(), TransportError> {
+        match self {
+            Self::Fixed(p) => p.deliver_history(),
+            _ => Ok(()),
+        }
+    }
+}
