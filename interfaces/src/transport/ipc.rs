@@ -155,6 +155,30 @@ impl Bus {
         &self.name
     }
 
+    /// The farsight topics that exist on this bus now (publish-subscribe
+    /// services under the farsight root), sorted: what a recorder's glob
+    /// patterns are matched against.
+    pub fn topics(&self) -> Result<Vec<String>, TransportError> {
+        let prefix = format!("{}/", crate::topics::ROOT);
+        let mut out = Vec::new();
+        ipc::Service::list(self.node.config(), |s| {
+            let name = s.static_details.name().as_str();
+            if matches!(
+                s.static_details.messaging_pattern(),
+                iceoryx2::service::static_config::messaging_pattern::MessagingPattern::PublishSubscribe(_)
+            ) {
+                if let Some(t) = name.strip_prefix(&prefix) {
+                    out.push(t.to_string());
+                }
+            }
+            CallbackProgression::Continue
+        })
+        .map_err(|e| ipc_err("service list", "*", e))?;
+        out.sort();
+        out.dedup();
+        Ok(out)
+    }
+
     /// Removes the resources of nodes whose process died; returns how many.
     pub fn cleanup_dead_nodes(&self) -> usize {
         let state = self.node.try_cleanup_dead_nodes();

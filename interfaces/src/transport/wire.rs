@@ -46,6 +46,10 @@ fn check_prefix(bytes: &[u8], tag: u8, expected: &'static str) -> Result<(), Wir
     Ok(())
 }
 
+/// The MCAP message encoding of channels whose messages are these bytes
+/// (farsight recordings).
+pub const MCAP_MESSAGE_ENCODING: &str = "farsight-wire";
+
 /// Encodes a fixed-size message.
 pub fn encode_message<M: Serialize>(msg: &M) -> Result<Vec<u8>, WireError> {
     let mut out = Vec::with_capacity(64);

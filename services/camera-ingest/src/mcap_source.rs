@@ -10,7 +10,7 @@ use farsight_interfaces::transport::wire;
 use std::path::Path;
 
 /// Message encoding of farsight's own MCAP channels.
-pub const FARSIGHT_ENCODING: &str = "farsight-wire";
+pub const FARSIGHT_ENCODING: &str = wire::MCAP_MESSAGE_ENCODING;
 
 /// One image message of a recording.
 pub struct RecordedFrame {

@@ -1,0 +1,62 @@
+//! # farsight-recording
+//!
+//! Recorded frame replays, the way the graph is integration-tested: record
+//! any farsight topics into an [MCAP](https://mcap.dev) file, read it back,
+//! replay it into the graph, and compare a run against a golden recording.
+//!
+//! Every topic gets its own channel whose messages are the topic's
+//! [wire](farsight_interfaces::transport::wire) bytes (message encoding
+//! `farsight-wire`, schema `farsight.<Kind>`); the log time is when the
+//! recorder received the message and the publish time the capture time of
+//! the frame it came from. With `foxglove` on, poses, paths, costmaps and
+//! images also get `/foxglove/<topic>` channels in Foxglove's JSON schemas,
+//! so the file opens in the Foxglove app as it is.
+//!
+//! ```no_run
+//! use farsight_recording::{read::Recording, write::RecordingWriter};
+//! use farsight_interfaces::{msg::{Pose, Stamp}, transport::wire};
+//!
+//! let mut w = RecordingWriter::create("run.mcap".as_ref(), true)?;
+//! let pose = Pose { stamp: Stamp::new(1, 5), ..Default::default() };
+//! w.write("state/pose", pose.stamp, 7, &wire::encode_message(&pose)?)?;
+//! w.finish()?;
+//! let info = Recording::open("run.mcap".as_ref())?.info()?;
+//! assert_eq!(info.topics[0].count, 1);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! Writing is incremental: every message is flushed to the file as its own
+//! chunk, so a recorder killed mid-run leaves a file that reads (and
+//! replays) up to its last complete message.
+
+pub mod diff;
+pub mod foxglove;
+pub mod pattern;
+pub mod read;
+pub mod record;
+pub mod replay;
+pub mod write;
+
+/// Message encoding of farsight's own channels: the wire format.
+pub const MESSAGE_ENCODING: &str = farsight_interfaces::transport::wire::MCAP_MESSAGE_ENCODING;
+
+/// Errors of reading and writing recordings.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordingError {
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("{path}: {source}")]
+    Mcap {
+        path: String,
+        source: mcap::McapError,
+    },
+    #[error("{0}")]
+    Transport(#[from] farsight_interfaces::transport::TransportError),
+    #[error("{0}")]
+    Wire(#[from] farsight_interfaces::transport::wire::WireError),
+    #[error("topic {topic:?}: {why}")]
+    Topic { topic: String, why: String },
+}

@@ -1,0 +1,129 @@
+//! The recorder: subscribes to every topic on the bus that matches the
+//! patterns (topics that appear later are picked up within `rescan`), and
+//! writes each message it receives. Delivery is latest-value, so a recorder
+//! slower than a topic skips messages; it counts them per topic from the
+//! gaps in the sequence numbers instead of hiding them.
+
+use crate::pattern::matches_any;
+use crate::write::{ChannelStats, RecordingWriter};
+use crate::RecordingError;
+use farsight_interfaces::clock::{Clock, WallClock};
+use farsight_interfaces::transport::any::AnySubscriber;
+use farsight_interfaces::transport::ipc::{self, Bus, LoopExit};
+use std::collections::BTreeMap;
+use std::ops::ControlFlow;
+use std::time::{Duration, Instant};
+
+/// What to record and for how long.
+#[derive(Debug, Clone)]
+pub struct RecordOptions {
+    /// Topic glob patterns (see [`crate::pattern`]).
+    pub patterns: Vec<String>,
+    /// How often the bus is searched for new matching topics.
+    pub rescan: Duration,
+    /// Stop after this long (`None`: until SIGINT/SIGTERM).
+    pub duration: Option<Duration>,
+    /// Print a progress line this often (`None`: never).
+    pub progress: Option<Duration>,
+}
+
+impl Default for RecordOptions {
+    fn default() -> Self {
+        Self {
+            patterns: vec!["**".into()],
+            rescan: Duration::from_millis(500),
+            duration: None,
+            progress: Some(Duration::from_secs(5)),
+        }
+    }
+}
+
+/// Per topic: what was written, and what latest-value delivery skipped.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct TopicReport {
+    pub written: ChannelStats,
+    pub skipped: u64,
+}
+
+/// Records until the duration is up or the process is told to stop; the
+/// file is finished (indexes written) either way.
+pub fn record(
+    bus: &Bus,
+    mut writer: RecordingWriter,
+    opts: &RecordOptions,
+) -> Result<BTreeMap<String, TopicReport>, RecordingError> {
+    let start = Instant::now();
+    let mut subs: Vec<(String, AnySubscriber)> = Vec::new();
+    let mut last_progress = Instant::now();
+    let mut failure: Option<RecordingError> = None;
+    loop {
+        for t in bus.topics()? {
+            if matches_any(&opts.patterns, &t) && !subs.iter().any(|(n, _)| *n == t) {
+                match AnySubscriber::open(bus, &t) {
+                    Ok(s) => {
+                        tracing::info!(topic = t, "recording");
+                        subs.push((t, s));
+                    }
+                    Err(e) => tracing::warn!(topic = t, "not recorded: {e}"),
+                }
+            }
+        }
+        let listeners: Vec<&ipc::InputListener> = subs.iter().map(|(_, s)| s.listener()).collect();
+        let scan_at = Instant::now() + opts.rescan;
+        let mut done = false;
+        let exit = ipc::wait_loop(&listeners, Some(Duration::from_millis(50)), |_| {
+            for (topic, s) in &subs {
+                match s.take_wire() {
+                    Ok(Some((stamp, bytes))) => {
+                        if let Err(e) = writer.write(topic, stamp, WallClock.now_ns(), &bytes) {
+                            failure = Some(e);
+                            return ControlFlow::Break(());
+                        }
+                    }
+                    Ok(None) => {}
+                    Err(e) => tracing::warn!(topic, "dropped: {e}"),
+                }
+            }
+            if opts.progress.is_some_and(|p| last_progress.elapsed() >= p) {
+                last_progress = Instant::now();
+                let (n, b) = writer
+                    .stats()
+                    .values()
+                    .fold((0, 0), |(n, b), s| (n + s.messages, b + s.bytes));
+                eprintln!(
+                    "recording {:.0} s: {} topics, {n} messages, {:.1} MB",
+                    start.elapsed().as_secs_f64(),
+                    writer.stats().len(),
+                    b as f64 / 1e6
+                );
+            }
+            if opts.duration.is_some_and(|d| start.elapsed() >= d) {
+                done = true;
+                return ControlFlow::Break(());
+            }
+            if Instant::now() >= scan_at {
+                return ControlFlow::Break(());
+            }
+            ControlFlow::Continue(())
+        })?;
+        if failure.is_some() || done || exit == LoopExit::Terminated {
+            break;
+        }
+    }
+    let skipped: BTreeMap<String, u64> = subs
+        .iter()
+        .map(|(t, s)| (t.clone(), s.skips().skipped))
+        .collect();
+    let written = writer.finish()?;
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    let mut report: BTreeMap<String, TopicReport> = BTreeMap::new();
+    for (t, s) in skipped {
+        report.entry(t).or_default().skipped = s;
+    }
+    for (t, w) in written {
+        report.entry(t).or_default().written = w;
+    }
+    Ok(report)
+}
