@@ -63,6 +63,10 @@ fn run() -> Result<()> {
     // The first command's ramp spans one nominal period.
     let mut last_ns: Option<u64> = None;
     let mut fresh_tracked = false;
+    // On the stamps' clock time stands still without inputs, so a dead
+    // upstream stage would never make them stale: this watchdog on the
+    // wall clock stops the robot anyway.
+    let mut watchdog = InputDeadline::new(config.subgoal_deadline_s);
     ipc::wait_loop(
         &[subgoals.listener(), estops.listener(), paths.listener()],
         Some(period),
@@ -123,9 +127,13 @@ fn run() -> Result<()> {
             // is acted on the moment it arrives.
             let now = clock.now_ns();
             let estop_now = wake == Wake::Input(1) && estop.is_some_and(|e| e.active == 1);
+            if fresh_tracked {
+                watchdog.seen(WallClock.now_ns());
+            }
+            let starved = stamped && !fresh_tracked && watchdog.is_stale(WallClock.now_ns());
             let due = match config.clock {
                 ClockSource::Wall => wake == Wake::Tick,
-                ClockSource::Stamps => fresh_tracked,
+                ClockSource::Stamps => fresh_tracked || (wake == Wake::Tick && starved),
             };
             if !due && !estop_now {
                 if wake == Wake::Tick {
@@ -134,13 +142,9 @@ fn run() -> Result<()> {
                 return ControlFlow::Continue(());
             }
             fresh_tracked = false;
-            let dt = last_ns.map_or(period.as_secs_f64(), |t| {
-                now.saturating_sub(t) as f64 * 1e-9
-            });
-            last_ns = Some(now);
             let goal_distance = tracker.goal_in_robot_frame().map(|(_, d)| d);
             let inputs = Inputs {
-                subgoal_stale: deadline.is_stale(now),
+                subgoal_stale: deadline.is_stale(now) || starved,
                 estop_active: estop.is_some_and(|e| e.active == 1),
                 goal_distance_m: goal_distance,
             };
@@ -152,7 +156,13 @@ fn run() -> Result<()> {
             let cmd = match decide(&inputs, &config.servo) {
                 Some(reason) => {
                     limiter.stop();
+                    // The next command's ramp starts from the stop, over one period.
+                    last_ns = None;
                     let why = match reason {
+                        CommandReason::STALE_INPUT if starved => format!(
+                            "no {tracked} for {} s of wall time",
+                            config.subgoal_deadline_s
+                        ),
                         CommandReason::STALE_INPUT => match deadline.age_s(now) {
                             Some(age) => format!(
                                 "{tracked} is {age:.2} s old (deadline {} s)",
@@ -197,6 +207,10 @@ fn run() -> Result<()> {
                     match target {
                         Ok(target) => {
                             health.set(HealthState::OK, "");
+                            let dt = last_ns.map_or(period.as_secs_f64(), |t| {
+                                now.saturating_sub(t) as f64 * 1e-9
+                            });
+                            last_ns = Some(now);
                             let (v, w) = limiter.limit(target, dt, &config.servo);
                             VelocityCommand {
                                 stamp,
@@ -208,6 +222,7 @@ fn run() -> Result<()> {
                         Err(why) => {
                             // An untrackable input stops the robot like a stale one.
                             limiter.stop();
+                            last_ns = None;
                             health.set(HealthState::DEGRADED, &why);
                             VelocityCommand::stop(stamp, CommandReason::NO_SUBGOAL)
                         }
