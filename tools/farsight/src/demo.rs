@@ -54,7 +54,7 @@ pub struct DemoArgs {
     rate_hz: f64,
 }
 
-pub struct Stage(Child);
+pub struct Stage(pub(crate) Child);
 
 impl Drop for Stage {
     fn drop(&mut self) {

@@ -43,6 +43,54 @@ hue_deg = [55.0, 115.0]\nsaturation = [0.35, 0.75]\nvalue = [0.35, 0.85]\n\
 [[hsv.ranges]]          # road, trail: tan, low saturation\n\
 hue_deg = [25.0, 45.0]\nsaturation = [0.1, 0.45]\nvalue = [0.4, 0.8]\n";
 
+/// The topics the demo records by name (subscribed before anything runs).
+const RECORDED: [&str; 12] = [
+    "camera/front/image",
+    "camera/front/info",
+    "state/pose",
+    "nav/goal",
+    "costmap/local",
+    "perception/front/navigability",
+    "nav/subgoal",
+    "nav/path/visual",
+    "nav/path/planned",
+    "costmap/fused",
+    "cmd/velocity",
+    "health/*",
+];
+
+/// `farsight record` into `out/recording.mcap`, as a child process; stopped
+/// (and its file finished) when the returned guard drops.
+fn start_recorder(out: &Path, prefix: &str) -> Result<Stage> {
+    use std::io::BufRead;
+    let log = std::fs::File::create(out.join("recorder.log"))?;
+    let mut child = Command::new(std::env::current_exe()?)
+        .args(["record", "--topics", &RECORDED.join(","), "--out"])
+        .arg(out.join("recording.mcap"))
+        .env("FARSIGHT_IPC_PREFIX", prefix)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(log)
+        .spawn()
+        .context("starting farsight record")?;
+    let mut stdout = std::io::BufReader::new(child.stdout.take().expect("piped"));
+    let mut line = String::new();
+    stdout.read_line(&mut line)?;
+    if line.trim() != "farsight-record ready" {
+        bail!(
+            "farsight record did not start; see {}",
+            out.join("recorder.log").display()
+        );
+    }
+    // Its closing report (messages and skips per topic) goes to our stdout.
+    std::thread::spawn(move || {
+        for line in stdout.lines().map_while(Result::ok) {
+            println!("recorder: {line}");
+        }
+    });
+    Ok(Stage(child))
+}
+
 fn write(out: &Path, name: &str, text: &str) -> Result<PathBuf> {
     let p = out.join(name);
     std::fs::write(&p, text).with_context(|| format!("writing {}", p.display()))?;
@@ -112,6 +160,9 @@ pub fn run(d: SimDemo) -> Result<()> {
             sim.display()
         );
     }
+    // Every topic goes into the recording; the sim's and the outputs' names
+    // are subscribed before the sim starts, the rest (health) when they appear.
+    let recorder = start_recorder(&out, &prefix)?;
     let mut cmd = Command::new(sim);
     cmd.args([
         "run",
@@ -129,6 +180,7 @@ pub fn run(d: SimDemo) -> Result<()> {
     }
     let status = cmd.status().context("running farsight-sim")?;
     drop(stages);
+    drop(recorder);
     if !status.success() {
         bail!(
             "farsight-sim failed ({status}); stage logs are in {}",
@@ -136,7 +188,7 @@ pub fn run(d: SimDemo) -> Result<()> {
         );
     }
     println!(
-        "configs, logs, summary.toml and {}-map.png are in {}",
+        "configs, logs, summary.toml, recording.mcap (see recorder.log) and {}-map.png are in {}",
         d.scenario,
         out.display()
     );

@@ -7,6 +7,9 @@
 //! farsight demo                                                      # closed loop in the simulator (bug-trap); --orfd: real frames
 //! farsight infer --model-config deploy/models/twinlitenet.toml IMAGES --out out/infer
 //! farsight hip-library poses.csv --k 200 --out hip-library.toml      # HIP trajectory library
+//! farsight record --topics 'camera/**' --out run.mcap               # record; --info FILE summarises
+//! farsight replay run.mcap --speed 4                                # or --lockstep --driving T --answer T
+//! farsight diff golden.mcap run.mcap                                # field-by-field comparison
 //! ```
 
 mod bench;
@@ -19,6 +22,7 @@ mod demo_sim;
 mod hip_library;
 mod infer;
 mod probe;
+mod recording;
 mod sim_tuning;
 
 use clap::{Parser, Subcommand};
@@ -48,6 +52,12 @@ enum Command {
     Infer(infer::InferArgs),
     /// Build HIP's trajectory library (k-means of recorded futures) from poses.
     HipLibrary(hip_library::HipLibraryArgs),
+    /// Record topics into an MCAP file (or --info FILE: what a recording holds).
+    Record(recording::RecordArgs),
+    /// Replay a recording into the graph: recorded pace, a factor, or lock-step.
+    Replay(recording::ReplayArgs),
+    /// Compare a run's recording against a golden one, field by field.
+    Diff(recording::DiffArgs),
 }
 
 fn main() {
@@ -59,6 +69,9 @@ fn main() {
         Command::Demo(a) => demo::run(a),
         Command::Infer(a) => infer::run(a),
         Command::HipLibrary(a) => hip_library::run(a),
+        Command::Record(a) => recording::run_record(a),
+        Command::Replay(a) => recording::run_replay(a),
+        Command::Diff(a) => recording::run_diff(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

@@ -1,7 +1,9 @@
 //! Comparing a run against a golden recording, topic by topic and frame by
 //! frame (messages are matched by the sequence number in their stamp):
 //! integers and bytes exactly, floats within a tolerance. Every difference
-//! names the topic, the sequence number and the field.
+//! names the topic, the sequence number and the field. Messages with
+//! sequence number 0 derive from no frame (the servo's stops before its
+//! first input and at shutdown) and are not compared.
 
 use crate::read::Recording;
 use crate::{RecordingError, MESSAGE_ENCODING};
@@ -236,7 +238,7 @@ pub fn compare_decoded(a: &Decoded, b: &Decoded, tol: Tolerance) -> Vec<(String,
     out
 }
 
-/// Per topic, the last message of each sequence number.
+/// Per topic, the first message of each sequence number.
 fn by_seq(
     rec: &Recording,
     patterns: &[String],
@@ -250,9 +252,14 @@ fn by_seq(
                 .pointer("/stamp/frame_seq")
                 .and_then(Value::as_u64)
                 .unwrap_or(m.sequence as u64);
-            out.entry(m.topic.to_string())
-                .or_default()
-                .insert(seq, m.data.into_owned());
+            // The first message of a frame is the stage's answer to it; a
+            // later one with the same stamp is a repeat (the servo's stops).
+            if seq > 0 {
+                out.entry(m.topic.to_string())
+                    .or_default()
+                    .entry(seq)
+                    .or_insert_with(|| m.data.into_owned());
+            }
         }
         Ok(())
     })?;

@@ -38,6 +38,9 @@ pub struct TopicInfo {
     pub last_log_ns: u64,
     pub first_seq: u32,
     pub last_seq: u32,
+    /// Capture times of the first and last message (the recording's clock).
+    pub first_capture_ns: u64,
+    pub last_capture_ns: u64,
 }
 
 impl TopicInfo {
@@ -74,19 +77,20 @@ impl std::fmt::Display for Info {
         )?;
         writeln!(
             f,
-            "{:<34} {:>8} {:>9} {:>11} {:>14}",
-            "topic", "messages", "rate Hz", "MB", "seq"
+            "{:<34} {:>8} {:>9} {:>11} {:>14} {:>10}",
+            "topic", "messages", "rate Hz", "MB", "seq", "capture s"
         )?;
         for t in &self.topics {
             writeln!(
                 f,
-                "{:<34} {:>8} {:>9.2} {:>11.3} {:>6}..{:<6}{}",
+                "{:<34} {:>8} {:>9.2} {:>11.3} {:>6}..{:<6} {:>10.2}{}",
                 t.topic,
                 t.count,
                 t.rate_hz(),
                 t.bytes as f64 / 1e6,
                 t.first_seq,
                 t.last_seq,
+                t.last_capture_ns.saturating_sub(t.first_capture_ns) as f64 * 1e-9,
                 if t.encoding == MESSAGE_ENCODING {
                     ""
                 } else {
@@ -137,8 +141,7 @@ impl Recording {
             }
         };
         let mut names: BTreeMap<u16, (Arc<str>, Arc<str>)> = BTreeMap::new();
-        let mut n = 0u64;
-        for m in stream {
+        for (n, m) in stream.enumerate() {
             let m = match m {
                 Ok(m) => m,
                 Err(e) => return Ok(Some(format!("after {n} messages: {e}"))),
@@ -160,7 +163,6 @@ impl Recording {
                 sequence: m.sequence,
                 data: m.data,
             })?;
-            n += 1;
         }
         Ok(None)
     }
@@ -198,7 +200,10 @@ impl Recording {
                 last_log_ns: m.log_time_ns,
                 first_seq: m.sequence,
                 last_seq: m.sequence,
+                first_capture_ns: m.capture_time_ns,
+                last_capture_ns: m.capture_time_ns,
             });
+            t.last_capture_ns = m.capture_time_ns;
             t.count += 1;
             t.bytes += m.data.len() as u64;
             t.last_log_ns = m.log_time_ns;

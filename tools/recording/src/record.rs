@@ -46,16 +46,25 @@ pub struct TopicReport {
 }
 
 /// Records until the duration is up or the process is told to stop; the
-/// file is finished (indexes written) either way.
+/// file is finished (indexes written) either way. Plain names among the
+/// patterns are subscribed before anything publishes them (an unknown name
+/// is an error); globs match the topics that exist, checked every `rescan`.
 pub fn record(
     bus: &Bus,
     mut writer: RecordingWriter,
     opts: &RecordOptions,
+    on_subscribed: impl FnOnce(),
 ) -> Result<BTreeMap<String, TopicReport>, RecordingError> {
     let start = Instant::now();
     let mut subs: Vec<(String, AnySubscriber)> = Vec::new();
     let mut last_progress = Instant::now();
     let mut failure: Option<RecordingError> = None;
+    // Plain topic names are subscribed at once, before their publishers
+    // exist: a recorder started ahead of the graph misses nothing.
+    for t in opts.patterns.iter().filter(|p| !p.contains('*')) {
+        subs.push((t.clone(), AnySubscriber::open(bus, t)?));
+    }
+    let mut on_subscribed = Some(on_subscribed);
     loop {
         for t in bus.topics()? {
             if matches_any(&opts.patterns, &t) && !subs.iter().any(|(n, _)| *n == t) {
@@ -67,6 +76,9 @@ pub fn record(
                     Err(e) => tracing::warn!(topic = t, "not recorded: {e}"),
                 }
             }
+        }
+        if let Some(f) = on_subscribed.take() {
+            f();
         }
         let listeners: Vec<&ipc::InputListener> = subs.iter().map(|(_, s)| s.listener()).collect();
         let scan_at = Instant::now() + opts.rescan;

@@ -5,13 +5,23 @@
 //! on the recording's capture times, so a lock-step replay gives the same
 //! outputs on any machine.
 //!
-//! Nothing is dropped silently: with an answer topic named, every frame of
-//! the driving topic the graph never answered (it skipped it, or answered
-//! too late in lock-step) is listed in the report.
+//! Nothing is dropped silently: with answer topics named, every frame of
+//! the driving topic that some answer topic never carried (a stage skipped
+//! it, or answered too late in lock-step) is listed in the report. The
+//! answers can be written to a recording as they are taken: in lock-step
+//! each stage answers a frame before the next goes out, so that recording
+//! holds every output of every frame (the golden tests compare it).
+//!
+//! Messages go out in capture-time order, the driving topic's message last
+//! among those of one capture time: a frame's pose and camera model are
+//! there before the frame that triggers the graph, whatever order the
+//! recorder happened to write them in.
 
 use crate::pattern::matches_any;
 use crate::read::{RecordedMessage, Recording};
+use crate::write::RecordingWriter;
 use crate::{RecordingError, MESSAGE_ENCODING};
+use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::topics::kind_of;
 use farsight_interfaces::transport::any::{AnyPublisher, AnySubscriber};
 use farsight_interfaces::transport::ipc::Bus;
@@ -21,7 +31,10 @@ use std::time::{Duration, Instant};
 /// How fast messages go out.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Pace {
-    /// The recorded receive times, sped up by the factor (1 = recorded speed).
+    /// The recorded capture times (the recording's clock: wall time on a
+    /// robot, simulated time from the simulator), sped up by the factor
+    /// (1 = recorded speed), from the driving topic's first frame on;
+    /// anything stamped earlier (a goal stamped 0) goes at once.
     Recorded { factor: f64 },
     /// Back to back.
     AsFast,
@@ -41,9 +54,10 @@ pub struct ReplayOptions {
     /// The topic whose frames the graph answers (e.g. `camera/front/image`),
     /// as published (after remapping).
     pub driving_topic: Option<String>,
-    /// The graph's answer (e.g. `cmd/velocity`): its stamp carries the
-    /// sequence number of the frame it was computed from.
-    pub answer_topic: Option<String>,
+    /// The graph's answers (e.g. `cmd/velocity`): their stamps carry the
+    /// sequence number of the frame they were computed from. Lock-step
+    /// waits for all of them.
+    pub answer_topics: Vec<String>,
     /// How long to keep listening for answers after the last message.
     pub drain: Duration,
 }
@@ -55,7 +69,7 @@ impl Default for ReplayOptions {
             remap: Vec::new(),
             pace: Pace::Recorded { factor: 1.0 },
             driving_topic: None,
-            answer_topic: None,
+            answer_topics: Vec::new(),
             drain: Duration::from_millis(500),
         }
     }
@@ -66,8 +80,10 @@ impl Default for ReplayOptions {
 pub struct ReplayReport {
     /// Messages published per topic (as published).
     pub published: BTreeMap<String, u64>,
-    /// Frames of the driving topic the graph never answered.
+    /// Frames of the driving topic some answer topic never carried.
     pub unanswered: Vec<u64>,
+    /// Answers taken per answer topic.
+    pub answers: BTreeMap<String, u64>,
     /// Frames of the driving topic published.
     pub driving_frames: u64,
     pub wall_s: f64,
@@ -100,6 +116,9 @@ impl std::fmt::Display for ReplayReport {
                 }
             )?;
         }
+        for (t, n) in &self.answers {
+            writeln!(f, "  answers on {t:<24} {n:>8}")?;
+        }
         if let Some(t) = &self.truncated {
             writeln!(f, "recording truncated: {t}")?;
         }
@@ -114,11 +133,37 @@ fn published_name(opts: &ReplayOptions, recorded: &str) -> String {
         .map_or_else(|| recorded.to_string(), |(_, to)| to.clone())
 }
 
-/// Replays `rec` into `bus`.
+/// An answer topic's subscriber and the frames it has carried.
+struct Answers {
+    topics: Vec<(String, AnySubscriber, BTreeSet<u64>, u64)>,
+}
+
+impl Answers {
+    /// Takes whatever each answer topic has now, into `out` when given.
+    fn take(&mut self, out: &mut Option<&mut RecordingWriter>) -> Result<(), RecordingError> {
+        for (topic, sub, seen, count) in &mut self.topics {
+            if let Some((stamp, bytes)) = sub.take_wire()? {
+                seen.insert(stamp.frame_seq);
+                *count += 1;
+                if let Some(w) = out.as_deref_mut() {
+                    w.write(topic, stamp, WallClock.now_ns(), &bytes)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn all_carry(&self, k: u64) -> bool {
+        self.topics.iter().all(|(_, _, seen, _)| seen.contains(&k))
+    }
+}
+
+/// Replays `rec` into `bus`; the answers taken go into `answers_out` when given.
 pub fn replay(
     bus: &Bus,
     rec: &Recording,
     opts: &ReplayOptions,
+    mut answers_out: Option<&mut RecordingWriter>,
 ) -> Result<ReplayReport, RecordingError> {
     for (from, to) in &opts.remap {
         if kind_of(from).is_none() || kind_of(from) != kind_of(to) {
@@ -129,10 +174,14 @@ pub fn replay(
         }
     }
     let (messages, truncated) = rec.messages()?;
-    let selected: Vec<&RecordedMessage> = messages
+    let mut selected: Vec<&RecordedMessage> = messages
         .iter()
         .filter(|m| &*m.encoding == MESSAGE_ENCODING && matches_any(&opts.topics, &m.topic))
         .collect();
+    let is_driving = |m: &RecordedMessage| {
+        opts.driving_topic.as_deref() == Some(published_name(opts, &m.topic).as_str())
+    };
+    selected.sort_by_key(|m| (m.capture_time_ns, is_driving(m)));
     // Slice publishers allocate once: size each for its topic's largest message.
     let mut largest: BTreeMap<&str, usize> = BTreeMap::new();
     for m in &selected {
@@ -145,61 +194,84 @@ pub fn replay(
         let p = AnyPublisher::open(bus, &name, bytes)?;
         publishers.insert(t, (name, p));
     }
-    let answers = opts
-        .answer_topic
-        .as_deref()
-        .map(|t| AnySubscriber::open(bus, t))
-        .transpose()?;
-    let mut answered: BTreeSet<u64> = BTreeSet::new();
-    let take_answers = |answered: &mut BTreeSet<u64>| -> Result<(), RecordingError> {
-        if let Some(a) = &answers {
-            while let Some((stamp, _)) = a.take_wire()? {
-                answered.insert(stamp.frame_seq);
-            }
-        }
-        Ok(())
+    let mut answers = Answers {
+        topics: opts
+            .answer_topics
+            .iter()
+            .map(|t| Ok((t.clone(), AnySubscriber::open(bus, t)?, BTreeSet::new(), 0)))
+            .collect::<Result<Vec<_>, RecordingError>>()?,
     };
+    // The graph's subscribers find new publishers when they next look;
+    // give them a moment before the first message, which some (the goal)
+    // only ever get once.
+    std::thread::sleep(Duration::from_millis(200));
     let mut report = ReplayReport {
         truncated,
         ..Default::default()
     };
     let mut driving: Vec<u64> = Vec::new();
     let start = Instant::now();
-    let first_log = selected.first().map_or(0, |m| m.log_time_ns);
+    // The clock starts at the driving topic's first frame (else the first
+    // stamped message): a goal stamped 0 must not count as the start of a
+    // recording made on the wall clock.
+    let first_capture = selected
+        .iter()
+        .find(|m| is_driving(m))
+        .or_else(|| selected.iter().find(|m| m.capture_time_ns > 0))
+        .map_or(0, |m| m.capture_time_ns);
     for m in &selected {
         if let Pace::Recorded { factor } = opts.pace {
             let due = Duration::from_secs_f64(
-                m.log_time_ns.saturating_sub(first_log) as f64 * 1e-9 / factor.max(1e-6),
+                m.capture_time_ns.saturating_sub(first_capture) as f64 * 1e-9 / factor.max(1e-6),
             );
-            std::thread::sleep(due.saturating_sub(start.elapsed()));
+            // Answers keep arriving while we wait: take each one as it comes.
+            while start.elapsed() < due {
+                answers.take(&mut answers_out)?;
+                std::thread::sleep(
+                    due.saturating_sub(start.elapsed())
+                        .min(Duration::from_micros(500)),
+                );
+            }
+        }
+        if is_driving(m) {
+            // Stages that connected after a fixed-size message went out
+            // (the goal is sent once) get it before the frame that needs it.
+            for (_, p) in publishers.values() {
+                p.deliver_history()?;
+            }
         }
         let (name, p) = publishers.get_mut(&*m.topic).expect("opened above");
         let stamp = p.publish_wire(&m.data)?;
         *report.published.entry(name.clone()).or_default() += 1;
-        take_answers(&mut answered)?;
+        answers.take(&mut answers_out)?;
         if opts.driving_topic.as_deref() == Some(name.as_str()) {
             driving.push(stamp.frame_seq);
             if let Pace::Lockstep { timeout } = opts.pace {
                 let end = Instant::now() + timeout;
-                while !answered.contains(&stamp.frame_seq) && Instant::now() < end {
+                while !answers.all_carry(stamp.frame_seq) && Instant::now() < end {
                     std::thread::sleep(Duration::from_micros(200));
-                    take_answers(&mut answered)?;
+                    answers.take(&mut answers_out)?;
                 }
             }
         }
     }
     let end = Instant::now() + opts.drain;
     while Instant::now() < end {
-        take_answers(&mut answered)?;
+        answers.take(&mut answers_out)?;
         std::thread::sleep(Duration::from_millis(1));
     }
     report.driving_frames = driving.len() as u64;
-    if answers.is_some() {
+    if !answers.topics.is_empty() {
         report.unanswered = driving
             .into_iter()
-            .filter(|k| !answered.contains(k))
+            .filter(|&k| !answers.all_carry(k))
             .collect();
     }
+    report.answers = answers
+        .topics
+        .iter()
+        .map(|(t, _, _, n)| (t.clone(), *n))
+        .collect();
     report.wall_s = start.elapsed().as_secs_f64();
     Ok(report)
 }

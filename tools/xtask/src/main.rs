@@ -6,7 +6,9 @@
 //!   summary line;
 //! - `bench NAME`: `farsight bench NAME` (transport, navigation, planning, nav, inference);
 //! - `demo`: build and run the closed loop in the simulator (`--orfd`: the graph
-//!   on the real frames in `../shared/data/orfd`).
+//!   on the real frames in `../shared/data/orfd`);
+//! - `fixtures`: regenerate the replay fixture and its goldens in
+//!   `tests/fixtures/sim-povnav/` (after an intended change of the outputs).
 //!
 //! Dependency-free on purpose, so it starts in seconds on a fresh clone.
 
@@ -24,9 +26,10 @@ fn main() -> ExitCode {
         Some("test") => test(),
         Some("bench") => bench(&args[1..]),
         Some("demo") => demo(&args[1..]),
+        Some("fixtures") => fixtures(),
         _ => {
             eprintln!(
-                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, clippy, build and every test\n  bench NAME        transport | navigation | planning | nav | inference (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames"
+                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, clippy, build and every test\n  bench NAME        transport | navigation | planning | nav | inference (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames\n  fixtures          regenerate tests/fixtures/sim-povnav (the replay fixture and its goldens)"
             );
             return ExitCode::from(2);
         }
@@ -212,6 +215,80 @@ fn bench(args: &[String]) -> Result<()> {
             KNOWN.join(", ")
         )),
     }
+}
+
+/// The topics the golden tests replay, and the outputs they compare.
+const FIXTURE_INPUTS: &str = "camera/front/image,camera/front/info,state/pose,nav/goal";
+const FIXTURE_OUTPUTS: &str =
+    "perception/front/navigability,nav/subgoal,nav/path/visual,cmd/velocity";
+
+/// The replay fixture: 8 s of the POVNav demo on bush-wall, recorded with
+/// every topic (`recording.mcap`: its simulator topics are the inputs the
+/// golden tests replay), the stage configs the demo wrote, and the goldens
+/// (`golden.mcap`): every output of every frame when those inputs are
+/// replayed lock-step through the stages. The goldens come from a replay
+/// rather than from the demo's own recording because the recorder, a
+/// latest-value subscriber, may skip a message when the lock-step demo runs
+/// faster than it writes; a lock-step replay waits for every answer.
+fn fixtures() -> Result<()> {
+    let out = root().join("target/fixture-run");
+    let _ = std::fs::remove_dir_all(&out);
+    demo(&[
+        "--method".into(),
+        "povnav".into(),
+        "--scenario".into(),
+        "bush-wall".into(),
+        "--max-time-s".into(),
+        "8".into(),
+        "--out".into(),
+        out.display().to_string(),
+    ])?;
+    let dest = root().join("tests/fixtures/sim-povnav");
+    std::fs::create_dir_all(&dest).map_err(|e| format!("{}: {e}", dest.display()))?;
+    for f in [
+        "recording.mcap",
+        "inference.toml",
+        "subgoal-selection.toml",
+        "velocity-servoing.toml",
+    ] {
+        std::fs::copy(out.join(f), dest.join(f)).map_err(|e| format!("copying {f}: {e}"))?;
+    }
+    let bin = root().join("target/release");
+    let prefix = format!("fixture{}_", std::process::id());
+    let mut stages = Vec::new();
+    for stage in ["inference", "subgoal-selection", "velocity-servoing"] {
+        let mut child = Command::new(bin.join(format!("farsight-{stage}")))
+            .arg("--config")
+            .arg(dest.join(format!("{stage}.toml")))
+            .env("FARSIGHT_IPC_PREFIX", &prefix)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .map_err(|e| format!("starting {stage}: {e}"))?;
+        let mut line = String::new();
+        let _ = BufReader::new(child.stdout.take().expect("piped")).read_line(&mut line);
+        stages.push(child);
+    }
+    let replayed = run(Command::new(bin.join("farsight"))
+        .env("FARSIGHT_IPC_PREFIX", &prefix)
+        .arg("replay")
+        .arg(dest.join("recording.mcap"))
+        .args(["--topics", FIXTURE_INPUTS, "--lockstep"])
+        .args([
+            "--driving",
+            "camera/front/image",
+            "--answer",
+            FIXTURE_OUTPUTS,
+        ])
+        .arg("--record-answers")
+        .arg(dest.join("golden.mcap")));
+    for mut s in stages {
+        let _ = s.kill();
+        let _ = s.wait();
+    }
+    replayed?;
+    println!("fixture and goldens written to {}", dest.display());
+    Ok(())
 }
 
 fn demo(args: &[String]) -> Result<()> {

@@ -1,0 +1,377 @@
+//! Recorded frame replays through the real stage binaries.
+//!
+//! The fixture `tests/fixtures/sim-povnav/` is 8 s of the POVNav demo on
+//! bush-wall, recorded with every topic, with the stage configs the demo ran
+//! and the goldens (`cargo xtask fixtures` regenerates all of it after an
+//! intended change of the outputs). Its simulator topics are replayed
+//! lock-step into inference (HSV backend) -> subgoal-selection (POVNav) ->
+//! velocity-servoing, all on the stamps' clock, and every output topic is
+//! compared with `golden.mcap`.
+
+use farsight_interfaces::msg::{CommandReason, VelocityCommand};
+use farsight_interfaces::topics;
+use farsight_interfaces::transport::wire;
+use farsight_recording::diff::{compare, Mismatch, Tolerance};
+use farsight_recording::read::Recording;
+use farsight_tests::{repo_root, Namespace, Proc};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+const STAGES: [&str; 3] = ["inference", "subgoal-selection", "velocity-servoing"];
+const INPUTS: &str = "camera/front/image,camera/front/info,state/pose,nav/goal";
+const OUTPUTS: [&str; 4] = [
+    "perception/front/navigability",
+    "nav/subgoal",
+    "nav/path/visual",
+    "cmd/velocity",
+];
+
+/// The fixture recording, relative to the tests' working directory (the
+/// `tests/` package folder).
+const FIXTURE_RECORDING: &str = "fixtures/sim-povnav/recording.mcap";
+
+fn fixture() -> PathBuf {
+    repo_root().join("tests/fixtures/sim-povnav")
+}
+
+/// The graph under test, each stage started from the fixture's config
+/// (`servo_deadline_s` overrides the servo's stale-input deadline).
+fn start_stage(ns: &Namespace, stage: &str, servo_deadline_s: Option<f64>) -> Proc {
+    let mut text = std::fs::read_to_string(fixture().join(format!("{stage}.toml"))).unwrap();
+    if let (Some(d), "velocity-servoing") = (servo_deadline_s, stage) {
+        text = text.replace(
+            "subgoal_deadline_s = 2.0",
+            &format!("subgoal_deadline_s = {d}"),
+        );
+    }
+    let cfg = ns.write(&format!("{stage}.toml"), &text);
+    ns.start_stage(&format!("farsight-{stage}"), stage, &cfg)
+}
+
+fn replay_args<'a>(answers: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
+        "replay",
+        FIXTURE_RECORDING,
+        "--topics",
+        INPUTS,
+        "--driving",
+        "camera/front/image",
+        "--answer",
+        "perception/front/navigability,nav/subgoal,nav/path/visual,cmd/velocity",
+        "--record-answers",
+        answers.to_str().unwrap(),
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
+/// Replays the fixture lock-step into the graph running in `ns`; returns
+/// the recording of every answer.
+fn lockstep_replay(ns: &Namespace) -> PathBuf {
+    let answers = ns.root.join("answers.mcap");
+    let mut replay = Proc::start("farsight", &replay_args(&answers, &["--lockstep"]), ns);
+    let code = replay.wait_exit(Duration::from_secs(60));
+    assert_eq!(code, Some(0), "{}", replay.stderr_so_far());
+    answers
+}
+
+fn mismatches(run: &Path, topics: &[&str]) -> Vec<Mismatch> {
+    let golden = Recording::open(&fixture().join("golden.mcap")).unwrap();
+    let run = Recording::open(run).unwrap();
+    let topics: Vec<String> = topics.iter().map(|s| s.to_string()).collect();
+    compare(&golden, &run, &topics, Tolerance::default()).unwrap()
+}
+
+fn report(m: &[Mismatch]) -> String {
+    m.iter().take(20).map(|m| format!("\n  {m}")).collect()
+}
+
+#[test]
+fn a_lockstep_replay_through_the_real_stages_reproduces_every_golden_output() {
+    let ns = Namespace::new("golden");
+    let _stages: Vec<Proc> = STAGES.iter().map(|s| start_stage(&ns, s, None)).collect();
+    let answers = lockstep_replay(&ns);
+    let diffs = mismatches(&answers, &OUTPUTS);
+    assert!(
+        diffs.is_empty(),
+        "{} differences:{}",
+        diffs.len(),
+        report(&diffs)
+    );
+    // Not vacuous: the run holds every frame of every output topic.
+    let frames = input_frames();
+    assert!(frames.len() > 70, "{frames:?}");
+    let mut seen: std::collections::BTreeMap<String, Vec<u64>> = Default::default();
+    Recording::open(&answers)
+        .unwrap()
+        .for_each(|m| {
+            let d = farsight_recording::diff::decode(&m.topic, &m.data)?;
+            let seq = d
+                .fields
+                .pointer("/stamp/frame_seq")
+                .and_then(|v| v.as_u64());
+            // Sequence 0: the servo's stop before its first input.
+            if let Some(s) = seq.filter(|&s| s > 0) {
+                seen.entry(m.topic.to_string()).or_default().push(s);
+            }
+            Ok(())
+        })
+        .unwrap();
+    for t in OUTPUTS {
+        assert_eq!(seen.get(t), Some(&frames), "{t}");
+    }
+}
+
+#[test]
+fn a_changed_output_is_reported_with_topic_sequence_and_field() {
+    // The same replay with the servo's gain changed must not pass: the diff
+    // names cmd/velocity, the first frame that moved and the field.
+    let ns = Namespace::new("goldenneg");
+    let mut stages: Vec<Proc> = STAGES[..2]
+        .iter()
+        .map(|s| start_stage(&ns, s, None))
+        .collect();
+    let text = std::fs::read_to_string(fixture().join("velocity-servoing.toml"))
+        .unwrap()
+        .replace("k_angular = 1.5", "k_angular = 1.2");
+    let cfg = ns.write("velocity-servoing.toml", &text);
+    stages.push(ns.start_stage("farsight-velocity-servoing", "velocity-servoing", &cfg));
+    let answers = lockstep_replay(&ns);
+    let diffs = mismatches(&answers, &OUTPUTS);
+    assert!(!diffs.is_empty());
+    assert!(
+        diffs.iter().all(|d| d.topic == "cmd/velocity"),
+        "{}",
+        report(&diffs)
+    );
+    assert!(
+        diffs.iter().any(|d| d.field == "angular_radps"),
+        "{}",
+        report(&diffs)
+    );
+    let first = diffs.iter().map(|d| d.seq).min().unwrap();
+    assert!(input_frames().contains(&first), "{first}");
+}
+
+/// The sequence numbers of the fixture's camera frames.
+fn input_frames() -> Vec<u64> {
+    let mut out = Vec::new();
+    Recording::open(&fixture().join("recording.mcap"))
+        .unwrap()
+        .for_each(|m| {
+            if &*m.topic == "camera/front/image" {
+                out.push(m.sequence as u64);
+            }
+            Ok(())
+        })
+        .unwrap();
+    out
+}
+
+/// The commands of a run, by frame.
+fn commands(path: &Path) -> Vec<VelocityCommand> {
+    let mut out = Vec::new();
+    Recording::open(path)
+        .unwrap()
+        .for_each(|m| {
+            if &*m.topic == "cmd/velocity" {
+                out.push(wire::decode_message::<VelocityCommand>(&m.data).unwrap());
+            }
+            Ok(())
+        })
+        .unwrap();
+    out
+}
+
+#[test]
+fn each_stage_killed_mid_replay_comes_back_and_matches_the_golden_run_again() {
+    for (k, victim) in STAGES.iter().enumerate() {
+        let ns = Namespace::new(&format!("restart{k}"));
+        let mut stages: Vec<Proc> = STAGES
+            .iter()
+            .map(|s| start_stage(&ns, s, Some(0.3)))
+            .collect();
+        let answers = ns.root.join("answers.mcap");
+        let args = replay_args(&answers, &["--lockstep", "--timeout-s", "0.4"]);
+        let bus = ns.bus("restart-test");
+        let cmd = bus.subscriber(&topics::velocity_command()).unwrap();
+        let mut replay = Proc::start("farsight", &args, &ns);
+        // Frames go out every few milliseconds while the graph answers: let
+        // 20 through, then SIGKILL the victim for 1.5 s (the replay waits
+        // 0.4 s per unanswered frame), then restart it.
+        let end = Instant::now() + Duration::from_secs(30);
+        while cmd.latest().unwrap().is_none_or(|c| c.stamp.frame_seq < 20) {
+            assert!(
+                Instant::now() < end,
+                "{victim}: the replay did not get going"
+            );
+            std::thread::sleep(Duration::from_micros(200));
+        }
+        stages[k].kill();
+        let killed_at = Instant::now();
+        std::thread::sleep(Duration::from_millis(1500));
+        stages[k] = start_stage(&ns, victim, Some(0.3));
+        let back_after = killed_at.elapsed();
+        let code = replay.wait_exit(Duration::from_secs(90));
+        let out = replay.stderr_so_far();
+        // Frames the dead stage never answered are reported, not hidden:
+        // the replay fails and says how many.
+        assert_eq!(
+            code,
+            Some(1),
+            "{victim}: the outage must be reported\n{out}"
+        );
+        assert!(
+            out.contains("frames were not consumed by the graph"),
+            "{out}"
+        );
+        // The others kept running all along.
+        for (j, s) in stages.iter_mut().enumerate() {
+            if j != k {
+                assert_eq!(
+                    s.wait_exit(Duration::from_millis(1)),
+                    None,
+                    "{} died",
+                    STAGES[j]
+                );
+            }
+        }
+        let cmds = commands(&answers);
+        if *victim != "velocity-servoing" {
+            // Its input gone, the servo stopped the robot: zero velocity
+            // with the stale-input reason, within its 0.3 s deadline.
+            assert!(
+                cmds.iter().any(|c| c.reason == CommandReason::STALE_INPUT
+                    && c.linear_mps == 0.0
+                    && c.angular_radps == 0.0),
+                "{victim}: no stop while its output was missing"
+            );
+        }
+        // From the first frame after the victim is back, its outputs (and
+        // everything downstream) match the golden run again. The servo ramps
+        // up from the stop, so its commands are compared over the last 20
+        // frames, once its acceleration limit has caught up.
+        let answered: Vec<u64> = cmds.iter().map(|c| c.stamp.frame_seq).collect();
+        let frames = input_frames();
+        let last_frame = *frames.last().unwrap();
+        let missing: Vec<u64> = frames
+            .iter()
+            .copied()
+            .filter(|s| !answered.contains(s))
+            .collect();
+        assert!(
+            !missing.is_empty() && answered.contains(&last_frame),
+            "{victim}: outage {missing:?}"
+        );
+        let back = missing.iter().max().unwrap() + 1;
+        let after: Vec<Mismatch> = mismatches(&answers, &OUTPUTS[..3])
+            .into_iter()
+            .filter(|m| m.seq >= back)
+            .collect();
+        assert!(
+            after.is_empty(),
+            "{victim} (back after {back_after:?} at frame {back}):{}",
+            report(&after)
+        );
+        let late: Vec<Mismatch> = mismatches(&answers, &OUTPUTS[3..])
+            .into_iter()
+            .filter(|m| m.seq + 20 > last_frame)
+            .collect();
+        assert!(
+            late.is_empty(),
+            "{victim}: commands of the last 20 frames:{}",
+            report(&late)
+        );
+    }
+}
+
+#[test]
+fn replays_at_recorded_speed_and_four_times_it_leave_no_frame_unanswered() {
+    let ns = Namespace::new("rate");
+    let _stages: Vec<Proc> = STAGES.iter().map(|s| start_stage(&ns, s, None)).collect();
+    for speed in ["1", "4"] {
+        let answers = ns.root.join(format!("answers-{speed}.mcap"));
+        let args = replay_args(&answers, &["--speed", speed]);
+        let mut replay = Proc::start("farsight", &args, &ns);
+        let code = replay.wait_exit(Duration::from_secs(60));
+        // A stage that fell behind would skip frames: they would be listed
+        // as not consumed and the replay would fail.
+        let lines: Vec<String> = std::iter::from_fn(|| {
+            replay
+                .wait_line(Duration::from_millis(100), |_| true)
+                .map(|(_, l)| l)
+        })
+        .collect();
+        assert_eq!(
+            code,
+            Some(0),
+            "at {speed}x:\n{}\n{}",
+            lines.join("\n"),
+            replay.stderr_so_far()
+        );
+        let n = input_frames().len();
+        let want = format!("frames answered: {n} of {n}");
+        assert!(lines.contains(&want), "{lines:?}");
+    }
+}
+
+#[test]
+fn a_recorder_killed_mid_run_leaves_a_file_that_reads_to_its_last_message() {
+    let ns = Namespace::new("killrec");
+    let file = ns.root.join("cut.mcap");
+    let mut rec = Proc::start(
+        "farsight",
+        &[
+            "record",
+            "--topics",
+            INPUTS,
+            "--out",
+            file.to_str().unwrap(),
+        ],
+        &ns,
+    );
+    rec.wait_line(Duration::from_secs(10), |l| l == "farsight-record ready")
+        .expect("recorder ready");
+    let fixture_file = fixture().join("recording.mcap");
+    let mut replay = Proc::start(
+        "farsight",
+        &["replay", fixture_file.to_str().unwrap(), "--topics", INPUTS],
+        &ns,
+    );
+    // Mid-replay (8 s at recorded pace), the recorder dies without a word.
+    std::thread::sleep(Duration::from_secs(3));
+    rec.kill();
+    assert_eq!(replay.wait_exit(Duration::from_secs(30)), Some(0));
+    let cut = Recording::open(&file).unwrap();
+    let info = cut.info().unwrap();
+    assert!(info.truncated.is_some(), "no summary was written: {info}");
+    let images = info
+        .topics
+        .iter()
+        .find(|t| t.topic == "camera/front/image")
+        .expect("images were recorded");
+    assert!(
+        images.count >= 15 && (images.count as usize) < input_frames().len(),
+        "{info}"
+    );
+    // What it holds is whole: every image decodes, and it replays.
+    let (messages, _) = cut.messages().unwrap();
+    for m in messages
+        .iter()
+        .filter(|m| &*m.topic == "camera/front/image")
+    {
+        let (h, d) = wire::split_slice::<farsight_interfaces::msg::ImageHeader>(&m.data).unwrap();
+        h.validate(d.len()).unwrap();
+    }
+    let mut again = Proc::start(
+        "farsight",
+        &["replay", file.to_str().unwrap(), "--as-fast"],
+        &ns,
+    );
+    assert_eq!(
+        again.wait_exit(Duration::from_secs(30)),
+        Some(0),
+        "{}",
+        again.stderr_so_far()
+    );
+}
