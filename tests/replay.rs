@@ -325,6 +325,7 @@ fn a_recorder_killed_mid_run_leaves_a_file_that_reads_to_its_last_message() {
             "record",
             "--topics",
             INPUTS,
+            "--foxglove",
             "--out",
             file.to_str().unwrap(),
         ],
@@ -345,6 +346,10 @@ fn a_recorder_killed_mid_run_leaves_a_file_that_reads_to_its_last_message() {
     let cut = Recording::open(&file).unwrap();
     let info = cut.info().unwrap();
     assert!(info.truncated.is_some(), "no summary was written: {info}");
+    // Foxglove's copies ride along: images and poses in its JSON schemas.
+    for t in ["/foxglove/camera/front/image", "/foxglove/state/pose"] {
+        assert!(info.topics.iter().any(|i| i.topic == t), "{t}: {info}");
+    }
     let images = info
         .topics
         .iter()
@@ -373,5 +378,68 @@ fn a_recorder_killed_mid_run_leaves_a_file_that_reads_to_its_last_message() {
         Some(0),
         "{}",
         again.stderr_so_far()
+    );
+}
+
+#[test]
+fn a_replay_publishes_selected_topics_under_new_names_and_refuses_a_bad_remap() {
+    let ns = Namespace::new("remap");
+    let bus = ns.bus("remap-test");
+    let left = bus.slice_subscriber(&topics::camera_image("left")).unwrap();
+    let front = bus
+        .slice_subscriber(&topics::camera_image("front"))
+        .unwrap();
+    let mut replay = Proc::start(
+        "farsight",
+        &[
+            "replay",
+            FIXTURE_RECORDING,
+            "--topics",
+            "camera/front/image",
+            "--remap",
+            "camera/front/image=camera/left/image",
+            "--speed",
+            "2",
+        ],
+        &ns,
+    );
+    let (mut seqs, mut on_front) = (Vec::new(), 0);
+    let end = Instant::now() + Duration::from_secs(20);
+    while Instant::now() < end && seqs.len() < 10 {
+        if let Some(s) = left.latest().unwrap() {
+            seqs.push(s.header().stamp.frame_seq);
+        }
+        if front.latest().unwrap().is_some() {
+            on_front += 1;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    assert_eq!(
+        replay.wait_exit(Duration::from_secs(20)),
+        Some(0),
+        "{}",
+        replay.stderr_so_far()
+    );
+    assert!(
+        seqs.len() >= 10 && seqs.windows(2).all(|w| w[0] < w[1]),
+        "{seqs:?}"
+    );
+    assert_eq!(on_front, 0, "only the new name is published");
+
+    let mut bad = Proc::start(
+        "farsight",
+        &[
+            "replay",
+            FIXTURE_RECORDING,
+            "--remap",
+            "camera/front/image=state/pose",
+        ],
+        &ns,
+    );
+    assert_eq!(bad.wait_exit(Duration::from_secs(20)), Some(1));
+    let err = bad.stderr_so_far();
+    assert!(
+        err.contains("camera/front/image=state/pose") && err.contains("same kind"),
+        "{err}"
     );
 }

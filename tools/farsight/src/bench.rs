@@ -35,6 +35,8 @@ pub enum BenchCommand {
     Planning(PlanningArgs),
     /// The navigation benchmark: seeded trials per scenario and method in the simulator.
     Nav(NavArgs),
+    /// What `farsight record` sustains writing 1280x720 RGB frames to disk.
+    Recorder(crate::bench_recorder::RecorderArgs),
     /// (internal) the receiving side of one cell of the transport benchmark.
     #[command(hide = true)]
     TransportReceiver(ReceiverArgs),
@@ -139,6 +141,7 @@ pub struct NavArgs {
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Nav(a) => crate::bench_nav::run(a),
+        BenchCommand::Recorder(a) => crate::bench_recorder::run(a),
         BenchCommand::Planning(a) => crate::bench_planning::run(a),
         BenchCommand::Navigation(a) => crate::bench_navigation::run(a),
         BenchCommand::Transport(a) => transport(a),

@@ -17,6 +17,7 @@ mod bench_inference;
 mod bench_nav;
 mod bench_navigation;
 mod bench_planning;
+mod bench_recorder;
 mod demo;
 mod demo_sim;
 mod hip_library;

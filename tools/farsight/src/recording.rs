@@ -32,6 +32,10 @@ pub struct RecordArgs {
     /// Also write Foxglove-viewable channels (poses, paths, costmaps, images).
     #[arg(long)]
     pub foxglove: bool,
+    /// Store messages as they are instead of zstd-compressed (less CPU,
+    /// much more disk).
+    #[arg(long)]
+    pub no_compression: bool,
     /// Print the summary of a recording instead of recording.
     #[arg(long, value_name = "FILE")]
     pub info: Option<PathBuf>,
@@ -44,7 +48,7 @@ pub fn run_record(a: RecordArgs) -> Result<()> {
         return Ok(());
     }
     let bus = Bus::open("farsight-record")?;
-    let writer = RecordingWriter::create(&a.out, a.foxglove)?;
+    let writer = RecordingWriter::create_with(&a.out, a.foxglove, !a.no_compression)?;
     let opts = RecordOptions {
         patterns: if a.topics.is_empty() {
             vec!["**".into()]

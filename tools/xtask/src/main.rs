@@ -4,7 +4,7 @@
 //!   cache (`$FARSIGHT_CACHE`, default `~/.cache/farsight`) and print its path;
 //! - `test`: every check CI runs: fmt, clippy, build, all tests, then one
 //!   summary line;
-//! - `bench NAME`: `farsight bench NAME` (transport, navigation, planning, nav, inference);
+//! - `bench NAME`: `farsight bench NAME` (transport, navigation, planning, nav, inference, recorder);
 //! - `demo`: build and run the closed loop in the simulator (`--orfd`: the graph
 //!   on the real frames in `../shared/data/orfd`);
 //! - `fixtures`: regenerate the replay fixture and its goldens in
@@ -29,7 +29,7 @@ fn main() -> ExitCode {
         Some("fixtures") => fixtures(),
         _ => {
             eprintln!(
-                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, clippy, build and every test\n  bench NAME        transport | navigation | planning | nav | inference (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames\n  fixtures          regenerate tests/fixtures/sim-povnav (the replay fixture and its goldens)"
+                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, clippy, build and every test\n  bench NAME        transport | navigation | planning | nav | inference | recorder (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames\n  fixtures          regenerate tests/fixtures/sim-povnav (the replay fixture and its goldens)"
             );
             return ExitCode::from(2);
         }
@@ -200,7 +200,14 @@ fn test() -> Result<()> {
 
 fn bench(args: &[String]) -> Result<()> {
     // Each name is a `farsight bench` subcommand; the rest of the line goes with it.
-    const KNOWN: [&str; 5] = ["transport", "navigation", "planning", "nav", "inference"];
+    const KNOWN: [&str; 6] = [
+        "transport",
+        "navigation",
+        "planning",
+        "nav",
+        "inference",
+        "recorder",
+    ];
     match args.first().map(String::as_str) {
         Some(name) if KNOWN.contains(&name) => {
             let mut cmd = Command::new(root().join("target/release/farsight"));
