@@ -443,3 +443,104 @@ fn a_replay_publishes_selected_topics_under_new_names_and_refuses_a_bad_remap() 
         "{err}"
     );
 }
+
+#[test]
+fn a_laptop_records_what_the_bridge_exports_over_zenoh() {
+    use farsight_tests::free_port;
+    let ns = Namespace::new("zenohrec");
+    let port = free_port();
+    let bridge_cfg = ns.write(
+        "bridge.toml",
+        &format!(
+            "robot = \"testbot\"\n[zenoh]\nmode = \"peer\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\n\
+             [[export]]\ntopic = \"state/pose\"\n\
+             [[export]]\ntopic = \"camera/front/image\"\ndownsample = 4\ncompression = \"jpeg\"\n"
+        ),
+    );
+    let bridge = Proc::start(
+        "farsight-bridge",
+        &["--config", bridge_cfg.to_str().unwrap()],
+        &ns,
+    );
+    bridge
+        .wait_line(Duration::from_secs(20), |l| l == "bridge ready")
+        .unwrap_or_else(|| panic!("bridge:\n{}", bridge.stderr_so_far()));
+    let file = ns.root.join("laptop.mcap");
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let mut rec = Proc::start(
+        "farsight",
+        &[
+            "record",
+            "--connect",
+            &endpoint,
+            "--robot",
+            "testbot",
+            "--topics",
+            "state/pose,camera/**",
+            "--foxglove",
+            "--out",
+            file.to_str().unwrap(),
+        ],
+        &ns,
+    );
+    rec.wait_line(Duration::from_secs(20), |l| l == "farsight-record ready")
+        .unwrap_or_else(|| panic!("recorder:\n{}", rec.stderr_so_far()));
+    std::thread::sleep(Duration::from_millis(500));
+    let mut replay = Proc::start(
+        "farsight",
+        &[
+            "replay",
+            FIXTURE_RECORDING,
+            "--topics",
+            "state/pose,camera/front/image",
+            "--speed",
+            "4",
+        ],
+        &ns,
+    );
+    assert_eq!(
+        replay.wait_exit(Duration::from_secs(30)),
+        Some(0),
+        "{}",
+        replay.stderr_so_far()
+    );
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(
+        rec.terminate(Duration::from_secs(10)),
+        Some(0),
+        "{}",
+        rec.stderr_so_far()
+    );
+    let info = Recording::open(&file).unwrap().info().unwrap();
+    assert!(
+        info.truncated.is_none(),
+        "SIGTERM finishes the file: {info}"
+    );
+    let count = |t: &str| {
+        info.topics
+            .iter()
+            .find(|i| i.topic == t)
+            .map_or(0, |i| i.count)
+    };
+    // The bridge forwards the newest message at its own pace: most frames,
+    // every one with its stamp; the images as the bridge sent them.
+    assert!(count("state/pose") > 40, "{info}");
+    assert!(count("camera/front/image") > 20, "{info}");
+    assert!(count("/foxglove/camera/front/image") > 20, "{info}");
+    let (messages, _) = Recording::open(&file).unwrap().messages().unwrap();
+    let images: Vec<_> = messages
+        .iter()
+        .filter(|m| &*m.topic == "camera/front/image")
+        .collect();
+    let (h, _) =
+        wire::split_slice::<farsight_interfaces::msg::ImageHeader>(&images[0].data).unwrap();
+    assert_eq!(
+        (h.width, h.height, h.encoding.name()),
+        (160, 90, Some("jpeg"))
+    );
+    // Frame numbers and capture times travel with them (frame 1 is at 0 s).
+    assert!(images.iter().all(|m| m.sequence > 0));
+    assert!(images
+        .windows(2)
+        .all(|w| w[0].capture_time_ns < w[1].capture_time_ns));
+}

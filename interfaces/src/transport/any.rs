@@ -49,6 +49,38 @@ fn decode_err(topic: &str) -> impl FnOnce(wire::WireError) -> TransportError + '
     }
 }
 
+/// The stamp of one wire-encoded message of `topic`, read without decoding
+/// the payload of header+slice messages.
+pub fn wire_stamp(topic: &str, bytes: &[u8]) -> Result<Stamp, TransportError> {
+    fn fixed<M: DeserializeOwned + super::Stamped>(
+        t: &str,
+        b: &[u8],
+    ) -> Result<Stamp, TransportError> {
+        Ok(wire::decode_message::<M>(b).map_err(decode_err(t))?.stamp())
+    }
+    fn header<H: DeserializeOwned + super::Stamped>(
+        t: &str,
+        b: &[u8],
+    ) -> Result<Stamp, TransportError> {
+        Ok(wire::split_slice::<H>(b).map_err(decode_err(t))?.0.stamp())
+    }
+    match kind(topic)? {
+        TopicKind::Image => header::<ImageHeader>(topic, bytes),
+        TopicKind::Tensor => header::<TensorHeader>(topic, bytes),
+        TopicKind::PolarBins => header::<PolarBinsHeader>(topic, bytes),
+        TopicKind::Costmap => header::<CostmapHeader>(topic, bytes),
+        TopicKind::CameraInfo => fixed::<CameraInfo>(topic, bytes),
+        TopicKind::AngularBins => fixed::<AngularBins>(topic, bytes),
+        TopicKind::Subgoal => fixed::<Subgoal>(topic, bytes),
+        TopicKind::Path => fixed::<Path>(topic, bytes),
+        TopicKind::Goal => fixed::<NavGoal>(topic, bytes),
+        TopicKind::Pose => fixed::<Pose>(topic, bytes),
+        TopicKind::VelocityCommand => fixed::<VelocityCommand>(topic, bytes),
+        TopicKind::EStop => fixed::<EStop>(topic, bytes),
+        TopicKind::Health => fixed::<StageHealth>(topic, bytes),
+    }
+}
+
 /// A fixed-size message subscriber behind a trait object.
 pub trait FixedSubscriber {
     fn listener(&self) -> &InputListener;

@@ -142,6 +142,20 @@ impl NetBus {
         Ok(RawSubscriber { subscriber, key })
     }
 
+    /// Every topic of this bus's robot (`farsight/<robot>/**`), with a queue
+    /// of `capacity` messages so a recorder that falls briefly behind loses
+    /// nothing (older messages go first when the queue is full).
+    pub fn tap(&self, capacity: usize) -> Result<Tap, TransportError> {
+        let key = format!("{}/{}/**", crate::topics::ROOT, self.robot);
+        let subscriber = self
+            .session
+            .declare_subscriber(key.clone())
+            .with(RingChannel::new(capacity.max(1)))
+            .wait()
+            .map_err(|e| z_err("declare subscriber", &key, e))?;
+        Ok(Tap { subscriber, key })
+    }
+
     /// A publisher of fixed-size messages (congestion control `Block`).
     pub fn publisher<M: Serialize>(
         &self,
@@ -207,6 +221,31 @@ impl RawPublisher {
 
     pub fn key(&self) -> &str {
         &self.key
+    }
+}
+
+/// Receives every topic of one robot, in arrival order.
+pub struct Tap {
+    subscriber: zenoh::pubsub::Subscriber<RingChannelHandler<Sample>>,
+    key: String,
+}
+
+impl Tap {
+    /// The next message, as (topic, wire bytes), if one is queued.
+    pub fn try_next(&self) -> Result<Option<(String, Vec<u8>)>, TransportError> {
+        while let Some(s) = self
+            .subscriber
+            .try_recv()
+            .map_err(|e| z_err("receive", &self.key, e))?
+        {
+            if let Some((_, topic)) = crate::topics::parse_zenoh_key(s.key_expr().as_str()) {
+                return Ok(Some((
+                    topic.to_string(),
+                    s.payload().to_bytes().into_owned(),
+                )));
+            }
+        }
+        Ok(None)
     }
 }
 

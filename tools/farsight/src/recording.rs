@@ -11,9 +11,10 @@
 
 use anyhow::{bail, Context, Result};
 use farsight_interfaces::transport::ipc::Bus;
+use farsight_interfaces::transport::net::NetBus;
 use farsight_recording::diff::{compare, Tolerance};
 use farsight_recording::read::Recording;
-use farsight_recording::record::{record, RecordOptions};
+use farsight_recording::record::{record, record_zenoh, RecordOptions};
 use farsight_recording::replay::{replay, Pace, ReplayOptions};
 use farsight_recording::write::RecordingWriter;
 use std::path::PathBuf;
@@ -36,6 +37,14 @@ pub struct RecordArgs {
     /// much more disk).
     #[arg(long)]
     pub no_compression: bool,
+    /// Record from a robot over zenoh (what its bridge exports) instead of
+    /// this machine's shared memory: the robot's zenoh endpoint(s), e.g.
+    /// tcp/192.168.1.10:7447.
+    #[arg(long, value_delimiter = ',')]
+    pub connect: Vec<String>,
+    /// With --connect: the robot's name (the <robot> of its zenoh keys).
+    #[arg(long, default_value = "robot")]
+    pub robot: String,
     /// Print the summary of a recording instead of recording.
     #[arg(long, value_name = "FILE")]
     pub info: Option<PathBuf>,
@@ -47,7 +56,6 @@ pub fn run_record(a: RecordArgs) -> Result<()> {
         print!("{info}");
         return Ok(());
     }
-    let bus = Bus::open("farsight-record")?;
     let writer = RecordingWriter::create_with(&a.out, a.foxglove, !a.no_compression)?;
     let opts = RecordOptions {
         patterns: if a.topics.is_empty() {
@@ -59,10 +67,14 @@ pub fn run_record(a: RecordArgs) -> Result<()> {
         ..Default::default()
     };
     eprintln!("recording {:?} into {}", opts.patterns, a.out.display());
-    let report = record(&bus, writer, &opts, || {
-        // The line a parent process (the demo, tests) waits for.
-        println!("farsight-record ready");
-    })?;
+    // The line a parent process (the demo, tests) waits for.
+    let ready = || println!("farsight-record ready");
+    let report = if a.connect.is_empty() {
+        record(&Bus::open("farsight-record")?, writer, &opts, ready)?
+    } else {
+        let config = NetBus::config("client", &[], &a.connect)?;
+        record_zenoh(&NetBus::open(config, &a.robot)?, writer, &opts, ready)?
+    };
     for (topic, r) in &report {
         println!(
             "{topic:<34} {:>8} messages {:>10.3} MB  skipped {}",

@@ -8,8 +8,10 @@ use crate::pattern::matches_any;
 use crate::write::{ChannelStats, RecordingWriter};
 use crate::RecordingError;
 use farsight_interfaces::clock::{Clock, WallClock};
-use farsight_interfaces::transport::any::AnySubscriber;
+use farsight_interfaces::transport::any::{wire_stamp, AnySubscriber};
 use farsight_interfaces::transport::ipc::{self, Bus, LoopExit};
+use farsight_interfaces::transport::net::NetBus;
+use farsight_interfaces::transport::SkipCounter;
 use std::collections::BTreeMap;
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
@@ -36,6 +38,74 @@ impl Default for RecordOptions {
             progress: Some(Duration::from_secs(5)),
         }
     }
+}
+
+/// Records what a robot's bridge sends over zenoh (`farsight/<robot>/**`,
+/// filtered by the patterns): what a laptop sees. Messages are queued
+/// (`capacity`) rather than latest-value; a full queue drops its oldest,
+/// which shows up as skipped sequence numbers. Stops like [`record`].
+pub fn record_zenoh(
+    net: &NetBus,
+    mut writer: RecordingWriter,
+    opts: &RecordOptions,
+    on_subscribed: impl FnOnce(),
+) -> Result<BTreeMap<String, TopicReport>, RecordingError> {
+    let tap = net.tap(1024)?;
+    on_subscribed();
+    let start = Instant::now();
+    let mut skips: BTreeMap<String, SkipCounter> = BTreeMap::new();
+    let mut failure: Option<RecordingError> = None;
+    ipc::wait_loop(&[], Some(Duration::from_millis(10)), |_| {
+        loop {
+            let (topic, bytes) = match tap.try_next() {
+                Ok(Some(m)) => m,
+                Ok(None) => break,
+                Err(e) => {
+                    failure = Some(e.into());
+                    return ControlFlow::Break(());
+                }
+            };
+            if !matches_any(&opts.patterns, &topic) {
+                continue;
+            }
+            let stamp = match wire_stamp(&topic, &bytes) {
+                Ok(s) => s,
+                Err(e) => {
+                    tracing::warn!(topic, "not recorded: {e}");
+                    continue;
+                }
+            };
+            skips
+                .entry(topic.clone())
+                .or_default()
+                .observe(stamp.frame_seq);
+            if let Err(e) = writer.write(&topic, stamp, WallClock.now_ns(), &bytes) {
+                failure = Some(e);
+                return ControlFlow::Break(());
+            }
+        }
+        if opts.duration.is_some_and(|d| start.elapsed() >= d) {
+            return ControlFlow::Break(());
+        }
+        ControlFlow::Continue(())
+    })?;
+    let written = writer.finish()?;
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    Ok(written
+        .into_iter()
+        .map(|(t, w)| {
+            let skipped = skips.get(&t).map_or(0, |s| s.skipped);
+            (
+                t,
+                TopicReport {
+                    written: w,
+                    skipped,
+                },
+            )
+        })
+        .collect())
 }
 
 /// Per topic: what was written, and what latest-value delivery skipped.
