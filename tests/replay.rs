@@ -544,3 +544,70 @@ fn a_laptop_records_what_the_bridge_exports_over_zenoh() {
         .windows(2)
         .all(|w| w[0].capture_time_ns < w[1].capture_time_ns));
 }
+
+#[test]
+fn the_orfd_recording_made_over_zenoh_feeds_camera_ingest_and_twinlitenet() {
+    // tests/fixtures/orfd: the six real ORFD frames as a laptop recorded
+    // them from the bridge (half size, JPEG). camera-ingest plays the file,
+    // paced by the inference stage's output, and TwinLiteNet marks the road.
+    use farsight_interfaces::msg::PixelEncoding;
+    use farsight_tests::{navigable_fraction, ORFD_ROAD_AHEAD, ORFD_SKY};
+    let ns = Namespace::new("orfdreplay");
+    let root = repo_root();
+    let inference_cfg = ns.write(
+        "inference.toml",
+        &format!(
+            "camera = \"front\"\nmodel_config = {:?}\n",
+            root.join("deploy/models/twinlitenet.toml")
+                .display()
+                .to_string()
+        ),
+    );
+    let ingest_cfg = ns.write(
+        "camera-ingest.toml",
+        &format!(
+            "[[cameras]]\nsource = \"mcap\"\nfile = {:?}\ntopic = \"camera/front/image\"\n\
+             pace_by = \"perception/front/navigability\"\n[cameras.model]\nname = \"front\"\n\
+             width = 640\nheight = 360\nfx = 743.875\nfy = 735.53\ncx = 312.25\ncy = 188.0\n",
+            root.join("tests/fixtures/orfd/recording.mcap")
+                .display()
+                .to_string()
+        ),
+    );
+    let bus = ns.bus("orfd-replay-test");
+    let nav = bus
+        .slice_subscriber(&topics::navigability("front"))
+        .unwrap();
+    let _inference = ns.start_stage("farsight-inference", "inference", &inference_cfg);
+    let mut ingest = ns.start_stage("farsight-camera-ingest", "camera-ingest", &ingest_cfg);
+    let mut seen = Vec::new();
+    let end = Instant::now() + Duration::from_secs(60);
+    while seen.len() < 6 && Instant::now() < end {
+        if let Some(s) = nav.latest().unwrap() {
+            let h = *s.header();
+            assert_eq!(
+                (h.width, h.height, h.encoding),
+                (640, 360, PixelEncoding::MONO8)
+            );
+            let (w, hh) = (h.width as usize, h.height as usize);
+            let road = navigable_fraction(s.data(), w, hh, ORFD_ROAD_AHEAD.0, ORFD_ROAD_AHEAD.1);
+            let sky = navigable_fraction(s.data(), w, hh, ORFD_SKY.0, ORFD_SKY.1);
+            assert!(
+                road > 0.8 && sky < 0.02,
+                "frame {}: road {road:.2}, sky {sky:.2}",
+                h.stamp.frame_seq
+            );
+            // The recorded stamps come through: ORFD's own capture times.
+            assert!(h.stamp.capture_time_ns / 1_000_000 >= 1_623_721_491_895);
+            seen.push(h.stamp.frame_seq);
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(seen, vec![1, 2, 3, 4, 5, 6], "{}", ingest.stderr_so_far());
+    assert_eq!(
+        ingest.wait_exit(Duration::from_secs(20)),
+        Some(0),
+        "{}",
+        ingest.stderr_so_far()
+    );
+}

@@ -20,7 +20,7 @@
 //! health_rate_hz = 1.0
 //!
 //! [[cameras]]
-//! source = "folder"          # "folder" or "v4l2"
+//! source = "folder"          # "folder", "mcap" or "v4l2"
 //! folder = "frames"          # folder: relative to this file
 //! depth_folder = ""          # folder: 16-bit depth PNGs named like the frames -> camera/<name>/depth
 //! rate_hz = 10.0             # folder: frames per second

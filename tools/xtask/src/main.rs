@@ -7,8 +7,9 @@
 //! - `bench NAME`: `farsight bench NAME` (transport, navigation, planning, nav, inference, recorder);
 //! - `demo`: build and run the closed loop in the simulator (`--orfd`: the graph
 //!   on the real frames in `../shared/data/orfd`);
-//! - `fixtures`: regenerate the replay fixture and its goldens in
-//!   `tests/fixtures/sim-povnav/` (after an intended change of the outputs).
+//! - `fixtures [sim|orfd]`: regenerate the replay fixtures in `tests/fixtures/`
+//!   (`sim-povnav/` with its goldens, after an intended change of the
+//!   outputs; `orfd/`, the real frames as recorded over zenoh).
 //!
 //! Dependency-free on purpose, so it starts in seconds on a fresh clone.
 
@@ -26,10 +27,10 @@ fn main() -> ExitCode {
         Some("test") => test(),
         Some("bench") => bench(&args[1..]),
         Some("demo") => demo(&args[1..]),
-        Some("fixtures") => fixtures(),
+        Some("fixtures") => fixtures(&args[1..]),
         _ => {
             eprintln!(
-                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, clippy, build and every test\n  bench NAME        transport | navigation | planning | nav | inference | recorder (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames\n  fixtures          regenerate tests/fixtures/sim-povnav (the replay fixture and its goldens)"
+                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, clippy, build and every test\n  bench NAME        transport | navigation | planning | nav | inference | recorder (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames\n  fixtures [sim|orfd]  regenerate tests/fixtures (the replay fixtures and their goldens)"
             );
             return ExitCode::from(2);
         }
@@ -237,7 +238,19 @@ const FIXTURE_OUTPUTS: &str =
 /// rather than from the demo's own recording because the recorder, a
 /// latest-value subscriber, may skip a message when the lock-step demo runs
 /// faster than it writes; a lock-step replay waits for every answer.
-fn fixtures() -> Result<()> {
+fn fixtures(which: &[String]) -> Result<()> {
+    let want = |name: &str| which.is_empty() || which.iter().any(|w| w == name);
+    if want("sim") {
+        sim_fixture()?;
+    }
+    if want("orfd") {
+        run(cargo().args(["build", "--release", "--workspace"]))?;
+        orfd_fixture()?;
+    }
+    Ok(())
+}
+
+fn sim_fixture() -> Result<()> {
     let out = root().join("target/fixture-run");
     let _ = std::fs::remove_dir_all(&out);
     demo(&[
@@ -296,6 +309,91 @@ fn fixtures() -> Result<()> {
     replayed?;
     println!("fixture and goldens written to {}", dest.display());
     Ok(())
+}
+
+/// `tests/fixtures/orfd/recording.mcap`: the six real ORFD frames as a
+/// laptop records them from a robot. camera-ingest publishes them, the
+/// bridge exports them over zenoh at half size as JPEG (about 60 KB each),
+/// and `farsight record --connect` writes them.
+fn orfd_fixture() -> Result<()> {
+    let bin = root().join("target/release");
+    let dest = root().join("tests/fixtures/orfd");
+    std::fs::create_dir_all(&dest).map_err(|e| format!("{}: {e}", dest.display()))?;
+    let work = root().join("target/fixture-orfd");
+    let _ = std::fs::remove_dir_all(&work);
+    std::fs::create_dir_all(&work).map_err(|e| e.to_string())?;
+    let port = 20000 + std::process::id() % 20000;
+    let write = |name: &str, text: String| -> Result<PathBuf> {
+        let p = work.join(name);
+        std::fs::write(&p, text).map_err(|e| format!("{}: {e}", p.display()))?;
+        Ok(p)
+    };
+    let bridge = write(
+        "bridge.toml",
+        format!(
+            "robot = \"fixture\"\n[zenoh]\nmode = \"peer\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\n\
+             [[export]]\ntopic = \"camera/front/image\"\ndownsample = 2\ncompression = \"jpeg\"\njpeg_quality = 85\n\
+             [[export]]\ntopic = \"camera/front/info\"\n"
+        ),
+    )?;
+    let ingest = write(
+        "camera-ingest.toml",
+        format!(
+            "[[cameras]]\nfolder = {:?}\nrate_hz = 4.0\nloops = 1\n[cameras.model]\nname = \"front\"\n\
+             width = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\n",
+            root().join("../shared/data/orfd/image_data").display().to_string()
+        ),
+    )?;
+    let prefix = format!("fixtureorfd{}_", std::process::id());
+    let spawn = |program: PathBuf, args: Vec<String>| -> Result<std::process::Child> {
+        let mut child = Command::new(&program)
+            .args(&args)
+            .env("FARSIGHT_IPC_PREFIX", &prefix)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .map_err(|e| format!("starting {}: {e}", program.display()))?;
+        // Each prints one line when it is ready.
+        let mut line = String::new();
+        let _ = BufReader::new(child.stdout.take().expect("piped")).read_line(&mut line);
+        Ok(child)
+    };
+    let stop = |mut c: std::process::Child| {
+        let _ = Command::new("kill")
+            .args(["-TERM", &c.id().to_string()])
+            .status();
+        let _ = c.wait();
+    };
+    let bridge = spawn(
+        bin.join("farsight-bridge"),
+        vec!["--config".into(), bridge.display().to_string()],
+    )?;
+    let recorder = spawn(
+        bin.join("farsight"),
+        vec![
+            "record".into(),
+            "--connect".into(),
+            format!("tcp/127.0.0.1:{port}"),
+            "--robot".into(),
+            "fixture".into(),
+            "--topics".into(),
+            "camera/front/**".into(),
+            "--out".into(),
+            dest.join("recording.mcap").display().to_string(),
+        ],
+    )?;
+    std::thread::sleep(std::time::Duration::from_secs(1));
+    let mut ingest = spawn(
+        bin.join("farsight-camera-ingest"),
+        vec!["--config".into(), ingest.display().to_string()],
+    )?;
+    let _ = ingest.wait();
+    std::thread::sleep(std::time::Duration::from_secs(1));
+    stop(recorder);
+    stop(bridge);
+    run(Command::new(bin.join("farsight"))
+        .args(["record", "--info"])
+        .arg(dest.join("recording.mcap")))
 }
 
 fn demo(args: &[String]) -> Result<()> {
