@@ -27,7 +27,18 @@ fn the_demo_escapes_the_bug_trap_with_dstar_lite_and_two_runs_drive_the_same_tra
     let ns = Namespace::new("bugtrap");
     let out = demo(&ns, "demo", &[]);
     assert_same_track(&out, &demo(&ns, "again", &[]));
-    assert!(out.join("bug-trap-map.png").exists());
+    // The map shows the planner's decisions (orange plans), from the
+    // recording of every topic the demo leaves beside it.
+    let png = std::fs::read(out.join("bug-trap-map.png")).unwrap();
+    let (_, rgb) = farsight_imaging::decode_png(&png).unwrap();
+    let orange = rgb.chunks(3).filter(|p| *p == [255, 150, 0]).count();
+    assert!(orange > 100, "{orange} plan pixels");
+    let info = farsight_recording::read::Recording::open(&out.join("recording.mcap"))
+        .unwrap()
+        .info()
+        .unwrap();
+    let planned = info.topics.iter().find(|t| t.topic == "nav/path/planned");
+    assert!(planned.is_some_and(|t| t.count > 100), "{info}");
     assert!(
         out.join("subgoal-selection.log").exists(),
         "stage logs are kept"

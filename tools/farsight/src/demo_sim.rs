@@ -2,7 +2,8 @@
 //! runs as its own process with `farsight-sim run` as the robot on a named
 //! scenario (default `bug-trap`), until the robot reaches the goal or the
 //! time runs out; the output folder gets each stage's config and log, the
-//! map with the driven track (PNG) and `summary.toml`.
+//! map with the driven track and the method's decisions (PNG), a recording
+//! of every topic (`recording.mcap`) and `summary.toml`.
 //!
 //! Methods:
 //! - `--method dstar-lite` (default): near-field sensing -> costmap-fusion -> D* Lite
@@ -44,7 +45,7 @@ hue_deg = [55.0, 115.0]\nsaturation = [0.35, 0.75]\nvalue = [0.35, 0.85]\n\
 hue_deg = [25.0, 45.0]\nsaturation = [0.1, 0.45]\nvalue = [0.4, 0.8]\n";
 
 /// The topics the demo records by name (subscribed before anything runs).
-const RECORDED: [&str; 12] = [
+const RECORDED: [&str; 13] = [
     "camera/front/image",
     "camera/front/info",
     "state/pose",
@@ -53,6 +54,7 @@ const RECORDED: [&str; 12] = [
     "perception/front/navigability",
     "nav/subgoal",
     "nav/path/visual",
+    "nav/path/visual_robot",
     "nav/path/planned",
     "costmap/fused",
     "cmd/velocity",
@@ -89,6 +91,71 @@ fn start_recorder(out: &Path, prefix: &str) -> Result<Stage> {
         }
     });
     Ok(Stage(child))
+}
+
+/// Adds the method's decisions to the map PNG, from the recording: every
+/// tenth subgoal within 50 m (yellow; robot-frame points placed with the
+/// pose of the same frame; POVNav's far horizon points project poorly) and
+/// the path every 5 s of driving (orange: D* Lite's planned world path,
+/// whose first plans run into the trap; POVNav's visual path on the
+/// ground), under the driven track the simulator drew.
+fn draw_decisions(out: &Path, scenario: &str, seed: u64) -> Result<()> {
+    use farsight_interfaces::msg::{Path as NavPath, PathFrame, Pose, Subgoal};
+    use farsight_interfaces::transport::wire;
+    use std::collections::HashMap;
+    let world = farsight_sim::scenario::scenario(scenario, seed)?.world;
+    let map_path = out.join(format!("{scenario}-map.png"));
+    let (header, mut rgb) = farsight_imaging::decode_png(&std::fs::read(&map_path)?)?;
+    let rec = farsight_recording::read::Recording::open(&out.join("recording.mcap"))?;
+    let (mut poses, mut subgoals, mut planned) = (HashMap::new(), Vec::new(), Vec::new());
+    rec.for_each(|m| {
+        match &*m.topic {
+            "state/pose" => {
+                let p: Pose = wire::decode_message(&m.data)?;
+                poses.insert(p.stamp.frame_seq, p);
+            }
+            "nav/subgoal" => subgoals.push(wire::decode_message::<Subgoal>(&m.data)?),
+            "nav/path/planned" | "nav/path/visual_robot" => {
+                planned.push(wire::decode_message::<NavPath>(&m.data)?)
+            }
+            _ => {}
+        }
+        Ok(())
+    })?;
+    let k = farsight_sim::run::map_scale(world.width, world.height);
+    let w = header.width as usize;
+    let mut dot = |x: f64, y: f64, c: [u8; 3]| {
+        if let Some((px, py)) = farsight_sim::run::map_pixel(&world, x, y) {
+            for (dx, dy) in (0..k).flat_map(|i| (0..k).map(move |j| (i, j))) {
+                let i = ((py + dy) * w + px + dx) * 3;
+                // The driven track (white) stays on top.
+                if rgb.get(i..i + 3).is_some_and(|p| p != [255, 255, 255]) {
+                    rgb[i..i + 3].copy_from_slice(&c);
+                }
+            }
+        }
+    };
+    for p in planned.iter().step_by(50) {
+        let pose = poses.get(&p.stamp.frame_seq);
+        for q in p.points.as_slice() {
+            let q = [q[0] as f64, q[1] as f64];
+            let w = match (p.frame, pose) {
+                (PathFrame::WORLD, _) => q,
+                (PathFrame::ROBOT, Some(pose)) => pose.to_world_frame(q),
+                _ => continue,
+            };
+            dot(w[0], w[1], [255, 150, 0]);
+        }
+    }
+    for s in subgoals.iter().step_by(10) {
+        let near = s.x_m.hypot(s.y_m) <= 50.0;
+        if let (Some(p), true) = (poses.get(&s.stamp.frame_seq), near) {
+            let q = p.to_world_frame([s.x_m as f64, s.y_m as f64]);
+            dot(q[0], q[1], [255, 230, 0]);
+        }
+    }
+    std::fs::write(&map_path, farsight_imaging::encode_png(&header, &rgb)?)?;
+    Ok(())
 }
 
 fn write(out: &Path, name: &str, text: &str) -> Result<PathBuf> {
@@ -187,6 +254,7 @@ pub fn run(d: SimDemo) -> Result<()> {
             out.display()
         );
     }
+    draw_decisions(&out, &d.scenario, d.seed)?;
     println!(
         "configs, logs, summary.toml, recording.mcap (see recorder.log) and {}-map.png are in {}",
         d.scenario,

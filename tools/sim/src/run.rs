@@ -210,6 +210,23 @@ pub fn reported_pose(
     ]
 }
 
+/// Pixels per map cell of the map PNG: small scenario maps are scaled up
+/// (whole pixels per cell) to be readable.
+pub fn map_scale(map_width: usize, map_height: usize) -> usize {
+    (800 / map_width.max(map_height).max(1)).clamp(1, 8)
+}
+
+/// The top-left pixel of the map PNG's block for world point (x, y), if it
+/// is on the map (north up, [`map_scale`] pixels per cell).
+pub fn map_pixel(world: &crate::world::World, x_m: f64, y_m: f64) -> Option<(usize, usize)> {
+    let (cx, cy) = world.cell_of(x_m, y_m);
+    if !world.contains(cx, cy) {
+        return None;
+    }
+    let k = map_scale(world.width, world.height);
+    Some((cx as usize * k, (world.height - 1 - cy as usize) * k))
+}
+
 /// Classes a ground robot may drive on (the oracle's navigability).
 pub fn navigable_class(c: u8) -> bool {
     matches!(c, class::ROAD | class::TRAIL | class::GRASS | class::FIELD)
@@ -344,8 +361,7 @@ pub fn run(a: RunArgs) -> Result<Summary> {
     trace.flush()?;
     let summary = episode.summary();
     let (mw, mh, cells) = episode.map_rgb();
-    // Small scenario maps are scaled up (whole pixels per cell) to be readable.
-    let k = (800 / mw.max(mh)).clamp(1, 8);
+    let k = map_scale(mw, mh);
     let (pw, ph) = (mw * k, mh * k);
     let rgb: Vec<u8> = (0..ph)
         .flat_map(|y| (0..pw).map(move |x| (y / k) * mw + x / k))
