@@ -29,15 +29,7 @@ topic = "nav/goal"
         ),
     )
     .unwrap();
-    let bridge = Proc::start(
-        "farsight-bridge",
-        &["--config", config.to_str().unwrap()],
-        ns,
-    );
-    bridge
-        .wait_line(Duration::from_secs(20), |l| l == "bridge ready")
-        .unwrap_or_else(|| panic!("bridge did not start:\n{}", bridge.stderr_so_far()));
-    bridge
+    ns.start_bridge(&config)
 }
 
 #[test]

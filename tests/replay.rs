@@ -457,14 +457,7 @@ fn a_laptop_records_what_the_bridge_exports_over_zenoh() {
              [[export]]\ntopic = \"camera/front/image\"\ndownsample = 4\ncompression = \"jpeg\"\n"
         ),
     );
-    let bridge = Proc::start(
-        "farsight-bridge",
-        &["--config", bridge_cfg.to_str().unwrap()],
-        &ns,
-    );
-    bridge
-        .wait_line(Duration::from_secs(20), |l| l == "bridge ready")
-        .unwrap_or_else(|| panic!("bridge:\n{}", bridge.stderr_so_far()));
+    let _bridge = ns.start_bridge(&bridge_cfg);
     let file = ns.root.join("laptop.mcap");
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let mut rec = Proc::start(
@@ -610,4 +603,114 @@ fn the_orfd_recording_made_over_zenoh_feeds_camera_ingest_and_twinlitenet() {
         "{}",
         ingest.stderr_so_far()
     );
+}
+
+#[test]
+fn a_laptop_inspects_the_graph_over_zenoh_while_a_recording_drives_it() {
+    use farsight_tests::free_port;
+    let ns = Namespace::new("inspect");
+    let _stages: Vec<Proc> = STAGES.iter().map(|s| start_stage(&ns, s, None)).collect();
+    let port = free_port();
+    let mut cfg = format!(
+        "robot = \"bot\"\n[zenoh]\nmode = \"router\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\n\
+         [[export]]\ntopic = \"camera/front/image\"\ndownsample = 2\ncompression = \"jpeg\"\n\
+         [[export]]\ntopic = \"perception/front/navigability\"\ndownsample = 2\ncompression = \"png\"\n"
+    );
+    for t in [
+        "camera/front/info",
+        "nav/subgoal",
+        "nav/path/visual",
+        "cmd/velocity",
+        "health/inference",
+        "health/subgoal-selection",
+        "health/velocity-servoing",
+    ] {
+        cfg += &format!("[[export]]\ntopic = \"{t}\"\n");
+    }
+    let bridge_cfg = ns.write("bridge.toml", &cfg);
+    let _bridge = ns.start_bridge(&bridge_cfg);
+    let mut replay = Proc::start(
+        "farsight",
+        &[
+            "replay",
+            FIXTURE_RECORDING,
+            "--topics",
+            INPUTS,
+            "--speed",
+            "1",
+        ],
+        &ns,
+    );
+    std::thread::sleep(Duration::from_secs(1));
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let laptop = |args: &[&str]| -> String {
+        let mut all = vec![
+            "inspect",
+            "--connect",
+            &endpoint,
+            "--robot",
+            "bot",
+            "--seconds",
+            "2.5",
+        ];
+        all.extend_from_slice(args);
+        let mut p = Proc::start("farsight", &all, &ns);
+        let code = p.wait_exit(Duration::from_secs(30));
+        let lines: Vec<String> = std::iter::from_fn(|| {
+            p.wait_line(Duration::from_millis(200), |_| true)
+                .map(|(_, l)| l)
+        })
+        .collect();
+        assert_eq!(
+            code,
+            Some(0),
+            "{all:?}\n{}\n{}",
+            lines.join("\n"),
+            p.stderr_so_far()
+        );
+        lines.join("\n")
+    };
+    let view = laptop(&[]);
+    for stage in STAGES {
+        assert!(
+            view.lines()
+                .any(|l| l.trim_start().starts_with(stage) && l.contains(" ok ")),
+            "{stage} alive and ok:\n{view}"
+        );
+    }
+    // Rates near the recording's 10 Hz.
+    let rate = |topic: &str| -> f64 {
+        let line = view
+            .lines()
+            .find(|l| l.trim_start().starts_with(topic))
+            .unwrap();
+        line.split_whitespace().nth(2).unwrap().parse().unwrap()
+    };
+    for t in ["cmd/velocity", "nav/subgoal", "camera/front/image"] {
+        let r = rate(t);
+        assert!((7.0..13.0).contains(&r), "{t} at {r} Hz:\n{view}");
+    }
+    let echo = laptop(&["echo", "nav/subgoal", "--count", "2"]);
+    assert_eq!(
+        echo.lines()
+            .filter(|l| l.contains("proximity_lambda_px"))
+            .count(),
+        2,
+        "{echo}"
+    );
+    let snap_dir = ns.root.join("snap");
+    let snap = laptop(&["snapshot", "--out", snap_dir.to_str().unwrap()]);
+    assert!(snap.contains("camera-front.png"), "{snap}");
+    let (h, rgb) =
+        farsight_imaging::decode_png(&std::fs::read(snap_dir.join("camera-front.png")).unwrap())
+            .unwrap();
+    assert_eq!(
+        (h.width, h.height),
+        (320, 180),
+        "the bridge's half-size frame"
+    );
+    let count = |c: [u8; 3]| rgb.chunks(3).filter(|p| *p == c).count();
+    assert!(count([255, 150, 0]) > 20, "the visual path is drawn");
+    assert!(count([255, 0, 0]) > 5, "the subgoal is drawn");
+    assert_eq!(replay.wait_exit(Duration::from_secs(30)), Some(0));
 }

@@ -97,6 +97,19 @@ impl Namespace {
         p.stderr_so_far()
     }
 
+    /// `farsight-bridge` from `config`, once it printed `bridge ready`.
+    pub fn start_bridge(&self, config: &std::path::Path) -> Proc {
+        let bridge = Proc::start(
+            "farsight-bridge",
+            &["--config", config.to_str().expect("utf-8 path")],
+            self,
+        );
+        bridge
+            .wait_line(Duration::from_secs(20), |l| l == "bridge ready")
+            .unwrap_or_else(|| panic!("bridge did not start:\n{}", bridge.stderr_so_far()));
+        bridge
+    }
+
     /// `Proc::start` that waits for the stage's `<name> ready` line.
     pub fn start_stage(&self, binary: &str, stage: &str, config: &std::path::Path) -> Proc {
         let p = Proc::start(

@@ -10,6 +10,7 @@
 //! farsight record --topics 'camera/**' --out run.mcap               # record; --info FILE summarises
 //! farsight replay run.mcap --speed 4                                # or --lockstep --driving T --answer T
 //! farsight diff golden.mcap run.mcap                                # field-by-field comparison
+//! farsight inspect --connect tcp/ROBOT:7447 --robot NAME            # the graph from a laptop
 //! ```
 
 mod bench;
@@ -22,6 +23,7 @@ mod demo;
 mod demo_sim;
 mod hip_library;
 mod infer;
+mod inspect;
 mod probe;
 mod recording;
 mod sim_tuning;
@@ -59,6 +61,8 @@ enum Command {
     Replay(recording::ReplayArgs),
     /// Compare a run's recording against a golden one, field by field.
     Diff(recording::DiffArgs),
+    /// The robot's graph from a laptop over zenoh: stages, health, rates, latency; echo; snapshot PNGs.
+    Inspect(inspect::InspectArgs),
 }
 
 fn main() {
@@ -73,6 +77,7 @@ fn main() {
         Command::Record(a) => recording::run_record(a),
         Command::Replay(a) => recording::run_replay(a),
         Command::Diff(a) => recording::run_diff(a),
+        Command::Inspect(a) => inspect::run(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

@@ -1,0 +1,383 @@
+//! `farsight inspect`: the robot's graph as a laptop sees it over zenoh
+//! (what the robot's bridge exports).
+//!
+//! ```text
+//! farsight inspect --connect tcp/ROBOT:7447 --robot NAME            # stages, health, rates, latency
+//! farsight inspect --connect tcp/ROBOT:7447 echo nav/subgoal        # messages as JSON
+//! farsight inspect --connect tcp/ROBOT:7447 snapshot --out snap     # camera with overlays, costmap: PNG
+//! ```
+//!
+//! A stage is alive when its health arrived in the last `--seconds` window.
+//! Latency is receive time minus the capture time each message carries, on
+//! the wall clock (robot and laptop clocks must agree, e.g. by NTP/PTP); a
+//! recording or simulation's clock shows as "-".
+
+use anyhow::{bail, Context, Result};
+use farsight_interfaces::clock::{Clock, WallClock};
+use farsight_interfaces::msg::*;
+use farsight_interfaces::topics::{kind_of, TopicKind};
+use farsight_interfaces::transport::any::wire_stamp;
+use farsight_interfaces::transport::net::NetBus;
+use farsight_interfaces::transport::wire;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+#[derive(Debug, clap::Args)]
+pub struct InspectArgs {
+    /// The robot's zenoh endpoint(s).
+    #[arg(long, value_delimiter = ',', default_value = "tcp/127.0.0.1:7447")]
+    pub connect: Vec<String>,
+    /// The robot's name (the <robot> of its zenoh keys).
+    #[arg(long, default_value = "robot")]
+    pub robot: String,
+    /// How long to listen.
+    #[arg(long, default_value_t = 3.0)]
+    pub seconds: f64,
+    #[command(subcommand)]
+    pub command: Option<InspectCommand>,
+}
+
+#[derive(Debug, clap::Subcommand)]
+pub enum InspectCommand {
+    /// Print a topic's messages as JSON (slices: header and length).
+    Echo {
+        topic: String,
+        #[arg(long, default_value_t = 5)]
+        count: usize,
+    },
+    /// Write the newest camera frame with the navigability mask, visual path
+    /// and subgoal drawn on it, and the fused costmap, as PNG files.
+    Snapshot {
+        #[arg(long, default_value = "front")]
+        camera: String,
+        #[arg(long, default_value = "snapshot")]
+        out: PathBuf,
+    },
+}
+
+/// Per topic: messages seen, over what time, and their latency.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TopicView {
+    pub count: u64,
+    pub first_ns: u64,
+    pub last_ns: u64,
+    /// Sum and count of wall-clock latencies (ms).
+    pub latency_ms: (f64, u64),
+}
+
+/// What the laptop has seen of the graph.
+#[derive(Debug, Clone, Default)]
+pub struct GraphView {
+    pub topics: BTreeMap<String, TopicView>,
+    pub health: BTreeMap<String, StageHealth>,
+}
+
+/// Capture times before this are not wall-clock (a replay or simulation's clock).
+const WALL_CLOCK_AFTER_NS: u64 = 1_500_000_000_000_000_000;
+
+impl GraphView {
+    /// Takes one message received at `now_ns`.
+    pub fn observe(&mut self, topic: &str, bytes: &[u8], now_ns: u64) {
+        let Ok(stamp) = wire_stamp(topic, bytes) else {
+            return;
+        };
+        let t = self.topics.entry(topic.to_string()).or_default();
+        if t.count == 0 {
+            t.first_ns = now_ns;
+        }
+        t.count += 1;
+        t.last_ns = now_ns;
+        if stamp.capture_time_ns > WALL_CLOCK_AFTER_NS && now_ns >= stamp.capture_time_ns {
+            t.latency_ms.0 += (now_ns - stamp.capture_time_ns) as f64 * 1e-6;
+            t.latency_ms.1 += 1;
+        }
+        if kind_of(topic) == Some(TopicKind::Health) {
+            if let Ok(h) = wire::decode_message::<StageHealth>(bytes) {
+                self.health.insert(h.stage.as_str().to_string(), h);
+            }
+        }
+    }
+
+    /// The one-screen report.
+    pub fn render(&self) -> String {
+        let mut s = String::from("stages (alive: health heard)\n");
+        s += &format!(
+            "  {:<20} {:<9} {:>8} {:>8} {:>7} {:>7} {:>10}  reason\n",
+            "stage", "state", "in", "out", "dropped", "skipped", "latency ms"
+        );
+        for (name, h) in &self.health {
+            s += &format!(
+                "  {:<20} {:<9} {:>8} {:>8} {:>7} {:>7} {:>10.1}  {}\n",
+                name,
+                h.state.name().unwrap_or("?"),
+                h.messages_in,
+                h.messages_out,
+                h.dropped,
+                h.skipped,
+                h.last_latency_ms,
+                h.reason.as_str()
+            );
+        }
+        s += "topics\n";
+        s += &format!(
+            "  {:<34} {:>8} {:>8} {:>14}\n",
+            "topic", "messages", "rate Hz", "latency ms"
+        );
+        for (topic, t) in &self.topics {
+            let span = t.last_ns.saturating_sub(t.first_ns) as f64 * 1e-9;
+            let rate = if t.count > 1 && span > 0.0 {
+                (t.count - 1) as f64 / span
+            } else {
+                0.0
+            };
+            let lat = if t.latency_ms.1 > 0 {
+                format!("{:.1}", t.latency_ms.0 / t.latency_ms.1 as f64)
+            } else {
+                "-".into()
+            };
+            s += &format!("  {topic:<34} {:>8} {rate:>8.2} {lat:>14}\n", t.count);
+        }
+        s
+    }
+}
+
+fn listen(a: &InspectArgs, mut on: impl FnMut(&str, &[u8], u64) -> bool) -> Result<()> {
+    let config = NetBus::config("client", &[], &a.connect)?;
+    let net =
+        NetBus::open(config, &a.robot).with_context(|| format!("connecting to {:?}", a.connect))?;
+    let tap = net.tap(1024)?;
+    let end = Instant::now() + Duration::from_secs_f64(a.seconds);
+    while Instant::now() < end {
+        match tap.try_next()? {
+            Some((topic, bytes)) => {
+                if !on(&topic, &bytes, WallClock.now_ns()) {
+                    return Ok(());
+                }
+            }
+            None => std::thread::sleep(Duration::from_millis(2)),
+        }
+    }
+    Ok(())
+}
+
+pub fn run(a: InspectArgs) -> Result<()> {
+    match &a.command {
+        None => {
+            let mut view = GraphView::default();
+            listen(&a, |t, b, now| {
+                view.observe(t, b, now);
+                true
+            })?;
+            if view.topics.is_empty() {
+                bail!(
+                    "nothing heard from robot {:?} at {:?} in {} s",
+                    a.robot,
+                    a.connect,
+                    a.seconds
+                );
+            }
+            print!("{}", view.render());
+        }
+        Some(InspectCommand::Echo { topic, count }) => {
+            let mut n = 0;
+            listen(&a, |t, b, _| {
+                if t == topic {
+                    match farsight_recording::diff::decode(t, b) {
+                        Ok(d) => {
+                            let len = d
+                                .bytes
+                                .as_ref()
+                                .map(Vec::len)
+                                .or(d.floats.as_ref().map(Vec::len));
+                            println!(
+                                "{}{}",
+                                d.fields,
+                                len.map_or(String::new(), |l| format!(" ({l} elements)"))
+                            );
+                        }
+                        Err(e) => println!("undecodable: {e}"),
+                    }
+                    n += 1;
+                }
+                n < *count
+            })?;
+            if n == 0 {
+                bail!("no message on {topic} in {} s", a.seconds);
+            }
+        }
+        Some(InspectCommand::Snapshot { camera, out }) => {
+            let mut newest: BTreeMap<String, Vec<u8>> = BTreeMap::new();
+            listen(&a, |t, b, _| {
+                newest.insert(t.to_string(), b.to_vec());
+                true
+            })?;
+            std::fs::create_dir_all(out)?;
+            let written = snapshot(&newest, camera, out)?;
+            if written.is_empty() {
+                bail!(
+                    "no camera/{camera}/image and no costmap heard in {} s",
+                    a.seconds
+                );
+            }
+            for p in written {
+                println!("{}", p.display());
+            }
+        }
+    }
+    Ok(())
+}
+
+fn decode_frame(bytes: &[u8]) -> Result<(ImageHeader, Vec<u8>)> {
+    let (h, d) = wire::split_slice::<ImageHeader>(bytes)?;
+    if h.encoding.is_compressed() {
+        Ok(farsight_imaging::decode_image(d)?)
+    } else {
+        h.validate(d.len())?;
+        Ok((h, d.to_vec()))
+    }
+}
+
+/// The newest camera frame with overlays (navigability green, visual path
+/// orange, subgoal red; all scaled to the frame's size) and the fused
+/// costmap in grey (lighter = cheaper, black = lethal, blue = unknown).
+pub fn snapshot(
+    newest: &BTreeMap<String, Vec<u8>>,
+    camera: &str,
+    out: &std::path::Path,
+) -> Result<Vec<PathBuf>> {
+    let mut written = Vec::new();
+    if let Some(bytes) = newest.get(&format!("camera/{camera}/image")) {
+        let (h, mut rgb) = decode_frame(bytes)?;
+        if h.encoding != PixelEncoding::RGB8 {
+            bail!("camera/{camera}/image is {}, not rgb8", h.encoding);
+        }
+        let (w, ht) = (h.width as usize, h.height as usize);
+        if let Some(nb) = newest.get(&format!("perception/{camera}/navigability")) {
+            let (nh, nav) = decode_frame(nb)?;
+            let (nw, nht) = (nh.width as usize, nh.height as usize);
+            for y in 0..ht {
+                for x in 0..w {
+                    if nav[(y * nht / ht) * nw + x * nw / w] > 127 {
+                        let p = &mut rgb[(y * w + x) * 3..][..3];
+                        p[1] = p[1].saturating_add(70);
+                    }
+                }
+            }
+        }
+        let mut dot = |u: f64, v: f64, scale: (f64, f64), c: [u8; 3]| {
+            let (x, y) = ((u * scale.0) as i64, (v * scale.1) as i64);
+            for dy in -2..=2 {
+                for dx in -2..=2 {
+                    let (px, py) = (x + dx, y + dy);
+                    if px >= 0 && py >= 0 && (px as usize) < w && (py as usize) < ht {
+                        rgb[(py as usize * w + px as usize) * 3..][..3].copy_from_slice(&c);
+                    }
+                }
+            }
+        };
+        // Paths and subgoals are in the full-size image's pixels; the frame
+        // may have been downsampled on the way (the bridge): scale by the
+        // camera model's size when it came along.
+        let scale = newest
+            .get(&format!("camera/{camera}/info"))
+            .and_then(|b| wire::decode_message::<CameraInfo>(b).ok())
+            .map_or((1.0, 1.0), |i| {
+                (w as f64 / i.width as f64, ht as f64 / i.height as f64)
+            });
+        if let Some(p) = newest
+            .get("nav/path/visual")
+            .and_then(|b| wire::decode_message::<Path>(b).ok())
+        {
+            for q in p.points.as_slice() {
+                dot(q[0] as f64, q[1] as f64, scale, [255, 150, 0]);
+            }
+        }
+        if let Some(s) = newest
+            .get("nav/subgoal")
+            .and_then(|b| wire::decode_message::<Subgoal>(b).ok())
+            .filter(|s| s.image_u_px.is_finite())
+        {
+            dot(s.image_u_px as f64, s.image_v_px as f64, scale, [255, 0, 0]);
+        }
+        let header =
+            ImageHeader::packed(h.stamp, h.camera_id, h.width, h.height, PixelEncoding::RGB8);
+        let p = out.join(format!("camera-{camera}.png"));
+        std::fs::write(&p, farsight_imaging::encode_png(&header, &rgb)?)?;
+        written.push(p);
+    }
+    for layer in ["fused", "local"] {
+        let Some(bytes) = newest.get(&format!("costmap/{layer}")) else {
+            continue;
+        };
+        let (h, cells) = wire::decode_slice::<CostmapHeader, CostCell>(bytes)?;
+        let rgb: Vec<u8> = cells
+            .iter()
+            .flat_map(|c| {
+                let s = c.cost_s_per_m;
+                if s.is_nan() {
+                    [40, 60, 120]
+                } else if s.is_infinite() {
+                    [0, 0, 0]
+                } else {
+                    let g = (255.0 * (1.0 - (s / 10.0).clamp(0.0, 1.0))) as u8;
+                    [g, g, g]
+                }
+            })
+            .collect();
+        let header = ImageHeader::packed(h.stamp, 0, h.width, h.height, PixelEncoding::RGB8);
+        let p = out.join(format!("costmap-{layer}.png"));
+        std::fs::write(&p, farsight_imaging::encode_png(&header, &rgb)?)?;
+        written.push(p);
+    }
+    Ok(written)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_view_counts_rates_latency_and_health() {
+        let mut v = GraphView::default();
+        let t0 = 1_700_000_000_000_000_000u64;
+        for k in 0..11u64 {
+            let pose = Pose {
+                stamp: Stamp::new(k, t0 + k * 100_000_000),
+                ..Default::default()
+            };
+            // Received 20 ms after capture, every 100 ms.
+            v.observe(
+                "state/pose",
+                &wire::encode_message(&pose).unwrap(),
+                t0 + k * 100_000_000 + 20_000_000,
+            );
+        }
+        let mut h = StageHealth {
+            state: HealthState::DEGRADED,
+            ..Default::default()
+        };
+        h.stage = farsight_interfaces::fixed::FixedStr::new("velocity-servoing").unwrap();
+        h.reason = farsight_interfaces::fixed::FixedStr::new("subgoal is 0.71 s old").unwrap();
+        v.observe(
+            "health/velocity-servoing",
+            &wire::encode_message(&h).unwrap(),
+            t0,
+        );
+        let t = &v.topics["state/pose"];
+        assert_eq!(t.count, 11);
+        assert!((t.latency_ms.0 / t.latency_ms.1 as f64 - 20.0).abs() < 1e-6);
+        let text = v.render();
+        assert!(text.contains("velocity-servoing"), "{text}");
+        assert!(text.contains("degraded"), "{text}");
+        assert!(text.contains("subgoal is 0.71 s old"), "{text}");
+        assert!(
+            text.lines()
+                .any(|l| l.contains("state/pose") && l.contains("10.00") && l.contains("20.0")),
+            "{text}"
+        );
+        // Garbage on a topic is ignored, not counted.
+        v.observe("state/pose", b"junk", t0);
+        assert_eq!(v.topics["state/pose"].count, 11);
+    }
+}
