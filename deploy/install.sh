@@ -82,6 +82,16 @@ for s in $stages; do
     act install -m 0644 "$repo/deploy/config/$s.toml" "$dest"
   fi
 done
+act install -d "$prefix/etc/farsight/zenoh"
+for f in robot.json5 users.txt; do
+  dest="$prefix/etc/farsight/zenoh/$f"
+  if [ -e "$dest" ]; then
+    say "kept your $dest"
+  else
+    act install -m 0640 "$repo/deploy/zenoh/$f" "$dest"
+  fi
+done
+say "change the passwords in $prefix/etc/farsight/zenoh/users.txt and robot.json5 before the robot leaves the lab"
 for u in "$repo"/deploy/systemd/*; do act install -m 0644 "$u" "$prefix/etc/systemd/system/"; done
 act install -m 0644 "$repo/deploy/tmpfiles.d/farsight.conf" "$prefix/usr/lib/tmpfiles.d/farsight.conf"
 act install -m 0644 "$repo/README.md" "$prefix/usr/local/share/doc/farsight/README.md"

@@ -191,14 +191,19 @@ fn the_shipped_configs_start_their_stages() {
     let ns = Namespace::new("shipped");
     let (prefix, _) = stage(&ns, &[]);
     let etc = prefix.join("etc/farsight");
-    // Port 7447 may be taken on a test machine: the bridge listens elsewhere.
-    let bridge = std::fs::read_to_string(etc.join("bridge.toml"))
+    // Port 7447 may be taken on a test machine: the router listens
+    // elsewhere, with the staged users file.
+    let router = std::fs::read_to_string(etc.join("zenoh/robot.json5"))
         .unwrap()
         .replace(
             "tcp/0.0.0.0:7447",
             &format!("tcp/127.0.0.1:{}", free_port()),
+        )
+        .replace(
+            "/etc/farsight/zenoh/users.txt",
+            etc.join("zenoh/users.txt").to_str().unwrap(),
         );
-    std::fs::write(etc.join("bridge.toml"), bridge).unwrap();
+    std::fs::write(etc.join("zenoh/robot.json5"), router).unwrap();
     let mut running: Vec<Proc> = Vec::new();
     for s in [
         "bin-projection",
@@ -221,4 +226,91 @@ fn the_shipped_configs_start_their_stages() {
     for mut p in running {
         assert_eq!(p.terminate(Duration::from_secs(10)), Some(0), "{}", p.name);
     }
+}
+
+#[test]
+fn the_robots_router_lets_laptops_read_and_only_operators_command() {
+    use farsight_interfaces::topics;
+    let ns = Namespace::new("acl");
+    let port = free_port();
+    // The shipped router config and users, pointed at this test's port and files.
+    let users = ns.write(
+        "users.txt",
+        &std::fs::read_to_string(repo_root().join("deploy/zenoh/users.txt")).unwrap(),
+    );
+    let router = std::fs::read_to_string(repo_root().join("deploy/zenoh/robot.json5"))
+        .unwrap()
+        .replace("tcp/0.0.0.0:7447", &format!("tcp/127.0.0.1:{port}"))
+        .replace("/etc/farsight/zenoh/users.txt", users.to_str().unwrap());
+    let router = ns.write("robot.json5", &router);
+    let bridge_cfg = ns.write(
+        "bridge.toml",
+        &format!(
+            "robot = \"robot\"\n[zenoh]\nconfig_file = {:?}\n\
+             [[export]]\ntopic = \"health/bridge\"\n[[import]]\ntopic = \"nav/goal\"\n",
+            router.to_str().unwrap()
+        ),
+    );
+    let bus = ns.bus("acl-test");
+    let goals = bus.subscriber(&topics::goal()).unwrap();
+    let _bridge = ns.start_bridge(&bridge_cfg);
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let as_user = |user: &str, password: &str, args: &[&str]| -> (Option<i32>, String) {
+        let mut all: Vec<&str> = args.to_vec();
+        all.extend_from_slice(&["--user", user]);
+        let mut p = Proc::start_env(
+            "farsight",
+            &all,
+            &ns,
+            &[("FARSIGHT_ZENOH_PASSWORD", password)],
+        );
+        let code = p.wait_exit(Duration::from_secs(30));
+        let out: Vec<String> = std::iter::from_fn(|| {
+            p.wait_line(Duration::from_millis(100), |_| true)
+                .map(|(_, l)| l)
+        })
+        .collect();
+        (code, format!("{}\n{}", out.join("\n"), p.stderr_so_far()))
+    };
+    let publish = [
+        "probe",
+        "net-publish-nav",
+        "--connect",
+        &endpoint,
+        "--robot",
+        "robot",
+        "--duration-s",
+        "1.5",
+    ];
+    // A laptop reads the graph...
+    let inspect = [
+        "inspect",
+        "--connect",
+        &endpoint,
+        "--robot",
+        "robot",
+        "--seconds",
+        "2.5",
+    ];
+    let (code, view) = as_user("laptop", "laptop-secret", &inspect);
+    assert_eq!(code, Some(0), "{view}");
+    assert!(view.contains("bridge"), "{view}");
+    // ...but its goals never reach the robot.
+    let (code, out) = as_user("laptop", "laptop-secret", &publish);
+    assert_eq!(code, Some(0), "{out}");
+    assert!(
+        goals.latest().unwrap().is_none(),
+        "a laptop without operator rights set a goal"
+    );
+    // The operator's do.
+    let (code, out) = as_user("operator", "operator-secret", &publish);
+    assert_eq!(code, Some(0), "{out}");
+    let goal = goals
+        .latest()
+        .unwrap()
+        .expect("the operator's goal arrives");
+    assert!(goal.x_m.is_finite());
+    // A wrong password gets nothing at all.
+    let (code, out) = as_user("laptop", "guess", &inspect);
+    assert_ne!(code, Some(0), "{out}");
 }

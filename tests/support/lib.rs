@@ -94,7 +94,7 @@ impl Namespace {
             Some(1),
             "{binary} should have failed at start-up"
         );
-        p.stderr_so_far()
+        p.stderr_to_end()
     }
 
     /// `farsight-bridge` from `config`, once it printed `bridge ready`.
@@ -266,6 +266,21 @@ impl Proc {
                 }
             }
         }
+    }
+
+    /// Everything the process wrote to stderr, once it has exited: waits (up
+    /// to 2 s) until its reader has seen the end of the stream.
+    pub fn stderr_to_end(&self) -> String {
+        let end = Instant::now() + Duration::from_secs(2);
+        let mut lines = Vec::new();
+        loop {
+            let left = end.saturating_duration_since(Instant::now());
+            match self.stderr.recv_timeout(left) {
+                Ok(l) => lines.push(l),
+                Err(_) => break,
+            }
+        }
+        lines.join("\n")
     }
 
     /// Everything written to stderr so far (for failure messages).

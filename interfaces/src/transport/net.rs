@@ -88,6 +88,28 @@ impl NetBus {
         Ok(c)
     }
 
+    /// Adds user/password credentials (zenoh's `usrpwd` authentication) to
+    /// `config`, for a robot whose router checks them (deploy/zenoh).
+    pub fn with_credentials(
+        mut config: zenoh::Config,
+        user: &str,
+        password: &str,
+    ) -> Result<zenoh::Config, TransportError> {
+        for (k, v) in [
+            ("transport/auth/usrpwd/user", user),
+            ("transport/auth/usrpwd/password", password),
+        ] {
+            config
+                .insert_json5(k, &format!("{v:?}"))
+                .map_err(|_| TransportError::Setting {
+                    key: "zenoh credentials",
+                    value: k.to_string(),
+                    expected: "a user name and password",
+                })?;
+        }
+        Ok(config)
+    }
+
     pub fn session(&self) -> &Session {
         &self.session
     }

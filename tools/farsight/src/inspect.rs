@@ -34,6 +34,8 @@ pub struct InspectArgs {
     /// How long to listen.
     #[arg(long, default_value_t = 3.0)]
     pub seconds: f64,
+    #[command(flatten)]
+    pub login: crate::Login,
     #[command(subcommand)]
     pub command: Option<InspectCommand>,
 }
@@ -143,7 +145,7 @@ impl GraphView {
 }
 
 fn listen(a: &InspectArgs, mut on: impl FnMut(&str, &[u8], u64) -> bool) -> Result<()> {
-    let config = NetBus::config("client", &[], &a.connect)?;
+    let config = a.login.client_config("client", &a.connect)?;
     let net =
         NetBus::open(config, &a.robot).with_context(|| format!("connecting to {:?}", a.connect))?;
     let tap = net.tap(1024)?;

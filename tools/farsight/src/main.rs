@@ -84,3 +84,29 @@ fn main() {
         std::process::exit(1);
     }
 }
+
+/// How a laptop-side command logs in to a robot's zenoh router: `--user`
+/// with the password in `FARSIGHT_ZENOH_PASSWORD` (never on the command
+/// line, where `ps` shows it), or no credentials.
+#[derive(Debug, Clone, clap::Args)]
+pub struct Login {
+    /// User name for the robot's router (deploy/zenoh/users.txt); the
+    /// password comes from FARSIGHT_ZENOH_PASSWORD.
+    #[arg(long)]
+    pub user: Option<String>,
+}
+
+impl Login {
+    /// A zenoh client config for `connect`, with the credentials if given.
+    pub fn client_config(&self, mode: &str, connect: &[String]) -> anyhow::Result<zenoh::Config> {
+        use farsight_interfaces::transport::net::NetBus;
+        let config = NetBus::config(mode, &[], connect)?;
+        let Some(user) = &self.user else {
+            return Ok(config);
+        };
+        let password = std::env::var("FARSIGHT_ZENOH_PASSWORD").map_err(|_| {
+            anyhow::anyhow!("--user {user}: set FARSIGHT_ZENOH_PASSWORD to the password")
+        })?;
+        Ok(NetBus::with_credentials(config, user, &password)?)
+    }
+}

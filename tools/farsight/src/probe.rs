@@ -78,6 +78,8 @@ pub struct NetSubscribeArgs {
 pub struct NetPublishNavArgs {
     #[arg(long)]
     connect: String,
+    #[command(flatten)]
+    login: crate::Login,
     #[arg(long, default_value = "robot")]
     robot: String,
     #[arg(long, default_value_t = 10.0)]
@@ -282,7 +284,10 @@ fn net_subscribe(a: NetSubscribeArgs) -> Result<()> {
 }
 
 fn net_publish_nav(a: NetPublishNavArgs) -> Result<()> {
-    let bus = net_bus(&a.connect, &a.robot)?;
+    let config = a
+        .login
+        .client_config("client", std::slice::from_ref(&a.connect))?;
+    let bus = NetBus::open(config, &a.robot).context("opening zenoh session")?;
     let mut pose_pub = bus.publisher(&topics::pose())?;
     let mut goal_pub = bus.publisher(&topics::goal())?;
     let end = Instant::now() + Duration::from_secs_f64(a.duration_s);

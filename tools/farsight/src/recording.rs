@@ -45,6 +45,8 @@ pub struct RecordArgs {
     /// With --connect: the robot's name (the <robot> of its zenoh keys).
     #[arg(long, default_value = "robot")]
     pub robot: String,
+    #[command(flatten)]
+    pub login: crate::Login,
     /// Print the summary of a recording instead of recording.
     #[arg(long, value_name = "FILE")]
     pub info: Option<PathBuf>,
@@ -72,7 +74,7 @@ pub fn run_record(a: RecordArgs) -> Result<()> {
     let report = if a.connect.is_empty() {
         record(&Bus::open("farsight-record")?, writer, &opts, ready)?
     } else {
-        let config = NetBus::config("client", &[], &a.connect)?;
+        let config = a.login.client_config("client", &a.connect)?;
         record_zenoh(&NetBus::open(config, &a.robot)?, writer, &opts, ready)?
     };
     for (topic, r) in &report {
