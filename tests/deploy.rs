@@ -255,22 +255,8 @@ fn the_robots_router_lets_laptops_read_and_only_operators_command() {
     let goals = bus.subscriber(&topics::goal()).unwrap();
     let _bridge = ns.start_bridge(&bridge_cfg);
     let endpoint = format!("tcp/127.0.0.1:{port}");
-    let as_user = |user: &str, password: &str, args: &[&str]| -> (Option<i32>, String) {
-        let mut all: Vec<&str> = args.to_vec();
-        all.extend_from_slice(&["--user", user]);
-        let mut p = Proc::start_env(
-            "farsight",
-            &all,
-            &ns,
-            &[("FARSIGHT_ZENOH_PASSWORD", password)],
-        );
-        let code = p.wait_exit(Duration::from_secs(30));
-        let out: Vec<String> = std::iter::from_fn(|| {
-            p.wait_line(Duration::from_millis(100), |_| true)
-                .map(|(_, l)| l)
-        })
-        .collect();
-        (code, format!("{}\n{}", out.join("\n"), p.stderr_so_far()))
+    let as_user = |user: &str, password: &str, args: &[&str]| {
+        Proc::farsight_as(None, &ns, user, password, args)
     };
     let publish = [
         "probe",

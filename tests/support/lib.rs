@@ -2,6 +2,7 @@
 //! processes in an isolated iceoryx2 namespace, watch their output, and kill
 //! them (SIGKILL, reaped) when a test ends or wants a crash.
 
+pub mod netns;
 pub mod onnx_fixture;
 
 use std::io::{BufRead, BufReader};
@@ -99,10 +100,17 @@ impl Namespace {
 
     /// `farsight-bridge` from `config`, once it printed `bridge ready`.
     pub fn start_bridge(&self, config: &std::path::Path) -> Proc {
-        let bridge = Proc::start(
+        self.start_bridge_in(None, config)
+    }
+
+    /// [`Namespace::start_bridge`] in network namespace `netns`.
+    pub fn start_bridge_in(&self, netns: Option<&str>, config: &std::path::Path) -> Proc {
+        let bridge = Proc::start_in(
+            netns,
             "farsight-bridge",
             &["--config", config.to_str().expect("utf-8 path")],
             self,
+            &[],
         );
         bridge
             .wait_line(Duration::from_secs(20), |l| l == "bridge ready")
@@ -112,10 +120,23 @@ impl Namespace {
 
     /// `Proc::start` that waits for the stage's `<name> ready` line.
     pub fn start_stage(&self, binary: &str, stage: &str, config: &std::path::Path) -> Proc {
-        let p = Proc::start(
+        self.start_stage_in(None, binary, stage, config)
+    }
+
+    /// [`Namespace::start_stage`] in network namespace `netns`.
+    pub fn start_stage_in(
+        &self,
+        netns: Option<&str>,
+        binary: &str,
+        stage: &str,
+        config: &std::path::Path,
+    ) -> Proc {
+        let p = Proc::start_in(
+            netns,
             binary,
             &["--config", config.to_str().expect("utf-8 path")],
             self,
+            &[],
         );
         let ready = format!("{stage} ready");
         p.wait_line(Duration::from_secs(30), |l| l == ready)
@@ -203,7 +224,26 @@ impl Proc {
     }
 
     pub fn start_env(name: &str, args: &[&str], ns: &Namespace, env: &[(&str, &str)]) -> Self {
-        let mut cmd = Command::new(bin(name));
+        Self::start_in(None, name, args, ns, env)
+    }
+
+    /// [`Proc::start_env`] inside network namespace `netns` (`ip netns exec`,
+    /// which execs the binary: the pid is the binary's).
+    pub fn start_in(
+        netns: Option<&str>,
+        name: &str,
+        args: &[&str],
+        ns: &Namespace,
+        env: &[(&str, &str)],
+    ) -> Self {
+        let mut cmd = match netns {
+            Some(n) => {
+                let mut c = Command::new("ip");
+                c.args(["netns", "exec", n]).arg(bin(name));
+                c
+            }
+            None => Command::new(bin(name)),
+        };
         cmd.args(args)
             .envs(ns.env())
             .env(
@@ -266,6 +306,34 @@ impl Proc {
                 }
             }
         }
+    }
+
+    /// Runs `farsight ARGS --user USER` (in network namespace `netns`, if
+    /// given) with the password in `FARSIGHT_ZENOH_PASSWORD`, to its end:
+    /// the exit code and everything it printed.
+    pub fn farsight_as(
+        netns: Option<&str>,
+        ns: &Namespace,
+        user: &str,
+        password: &str,
+        args: &[&str],
+    ) -> (Option<i32>, String) {
+        let mut all = args.to_vec();
+        all.extend_from_slice(&["--user", user]);
+        let mut p = Self::start_in(
+            netns,
+            "farsight",
+            &all,
+            ns,
+            &[("FARSIGHT_ZENOH_PASSWORD", password)],
+        );
+        let code = p.wait_exit(Duration::from_secs(30));
+        let out: Vec<String> = std::iter::from_fn(|| {
+            p.wait_line(Duration::from_millis(100), |_| true)
+                .map(|(_, l)| l)
+        })
+        .collect();
+        (code, format!("{}\n{}", out.join("\n"), p.stderr_to_end()))
     }
 
     /// Everything the process wrote to stderr, once it has exited: waits (up

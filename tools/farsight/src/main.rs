@@ -92,7 +92,7 @@ fn main() {
 pub struct Login {
     /// User name for the robot's router (deploy/zenoh/users.txt); the
     /// password comes from FARSIGHT_ZENOH_PASSWORD.
-    #[arg(long)]
+    #[arg(long, global = true)]
     pub user: Option<String>,
 }
 

@@ -1,0 +1,238 @@
+//! The robot and the laptop as two hosts: network namespaces joined by a
+//! veth pair, zenoh the only thing between them. The robot namespace runs
+//! the graph (inference -> POVNav -> servo, driven by the replay fixture)
+//! and the bridge with the shipped router config (deploy/zenoh); the laptop
+//! namespace runs `farsight inspect`.
+
+use farsight_interfaces::msg::GoalKind;
+use farsight_interfaces::topics;
+use farsight_tests::netns::TwoHosts;
+use farsight_tests::{free_port, repo_root, Namespace, Proc};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+const STAGES: [&str; 3] = ["inference", "subgoal-selection", "velocity-servoing"];
+
+fn fixture(name: &str) -> PathBuf {
+    repo_root().join("tests/fixtures/sim-povnav").join(name)
+}
+
+/// The robot: the three stages, the bridge behind the shipped router
+/// config listening on the robot's address, and a replay of the fixture
+/// at `speed` feeding them.
+fn robot(ns: &Namespace, hosts: &TwoHosts, port: u16, speed: &str) -> Vec<Proc> {
+    let r = Some(hosts.robot.as_str());
+    let mut procs = Vec::new();
+    for s in STAGES {
+        let cfg = ns.write(
+            &format!("{s}.toml"),
+            &std::fs::read_to_string(fixture(&format!("{s}.toml"))).unwrap(),
+        );
+        procs.push(ns.start_stage_in(r, &format!("farsight-{s}"), s, &cfg));
+    }
+    let users = ns.write(
+        "users.txt",
+        &std::fs::read_to_string(repo_root().join("deploy/zenoh/users.txt")).unwrap(),
+    );
+    let router = std::fs::read_to_string(repo_root().join("deploy/zenoh/robot.json5"))
+        .unwrap()
+        .replace(
+            "tcp/0.0.0.0:7447",
+            &format!("tcp/{}:{port}", hosts.robot_ip),
+        )
+        .replace("/etc/farsight/zenoh/users.txt", users.to_str().unwrap());
+    let router = ns.write("robot.json5", &router);
+    let mut bridge = format!(
+        "robot = \"robot\"\n[zenoh]\nconfig_file = {:?}\n\
+         [[export]]\ntopic = \"camera/front/image\"\ndownsample = 2\ncompression = \"jpeg\"\n\
+         [[export]]\ntopic = \"perception/front/navigability\"\ndownsample = 2\ncompression = \"png\"\n\
+         [[import]]\ntopic = \"nav/goal\"\n",
+        router.to_str().unwrap()
+    );
+    for t in [
+        "camera/front/info",
+        "nav/subgoal",
+        "nav/path/visual",
+        "cmd/velocity",
+        "health/inference",
+        "health/subgoal-selection",
+        "health/velocity-servoing",
+    ] {
+        bridge += &format!("[[export]]\ntopic = \"{t}\"\n");
+    }
+    procs.push(ns.start_bridge_in(r, &ns.write("bridge.toml", &bridge)));
+    let recording = fixture("recording.mcap");
+    procs.push(Proc::start_in(
+        r,
+        "farsight",
+        &[
+            "replay",
+            recording.to_str().unwrap(),
+            "--topics",
+            "camera/front/image,camera/front/info,state/pose,nav/goal",
+            "--speed",
+            speed,
+        ],
+        ns,
+        &[],
+    ));
+    procs
+}
+
+/// `farsight ARGS --user USER` in the laptop namespace.
+fn laptop(
+    ns: &Namespace,
+    hosts: &TwoHosts,
+    user: &str,
+    password: &str,
+    args: &[&str],
+) -> (Option<i32>, String) {
+    Proc::farsight_as(Some(&hosts.laptop), ns, user, password, args)
+}
+
+#[test]
+fn a_laptop_on_another_host_sees_the_graph_and_commands_only_as_operator() {
+    let ns = Namespace::new("netns");
+    let hosts = TwoHosts::new("a");
+    let port = free_port();
+    let _robot = robot(&ns, &hosts, port, "1");
+    let endpoint = format!("tcp/{}:{port}", hosts.robot_ip);
+    std::thread::sleep(Duration::from_secs(1));
+    let (code, view) = laptop(
+        &ns,
+        &hosts,
+        "laptop",
+        "laptop-secret",
+        &[
+            "inspect",
+            "--connect",
+            &endpoint,
+            "--robot",
+            "robot",
+            "--seconds",
+            "2.5",
+        ],
+    );
+    assert_eq!(code, Some(0), "{view}");
+    for s in STAGES {
+        assert!(
+            view.lines()
+                .any(|l| l.trim_start().starts_with(s) && l.contains(" ok ")),
+            "{s} alive:\n{view}"
+        );
+    }
+    let line = view
+        .lines()
+        .find(|l| l.trim_start().starts_with("cmd/velocity"))
+        .expect(&view);
+    let rate: f64 = line.split_whitespace().nth(2).unwrap().parse().unwrap();
+    assert!((7.0..13.0).contains(&rate), "{view}");
+    let snap = ns.root.join("snap");
+    let (code, out) = laptop(
+        &ns,
+        &hosts,
+        "laptop",
+        "laptop-secret",
+        &[
+            "inspect",
+            "--connect",
+            &endpoint,
+            "--robot",
+            "robot",
+            "--seconds",
+            "1.5",
+            "snapshot",
+            "--out",
+            snap.to_str().unwrap(),
+        ],
+    );
+    assert_eq!(code, Some(0), "{out}");
+    assert!(snap.join("camera-front.png").exists(), "{out}");
+
+    // Commands (the probe's GPS goals; the replay's goal is a local one):
+    // the laptop's are refused by the robot's router, the operator's arrive
+    // in the robot's shared memory.
+    let bus = ns.bus("netns-test");
+    let goals = bus.subscriber(&topics::goal()).unwrap();
+    let publish = [
+        "probe",
+        "net-publish-nav",
+        "--connect",
+        &endpoint,
+        "--robot",
+        "robot",
+        "--duration-s",
+        "1.5",
+    ];
+    let (code, out) = laptop(&ns, &hosts, "laptop", "laptop-secret", &publish);
+    assert_eq!(code, Some(0), "{out}");
+    let from_laptop =
+        std::iter::from_fn(|| goals.latest().unwrap()).find(|g| g.kind == GoalKind::GPS);
+    assert!(
+        from_laptop.is_none(),
+        "the laptop set a goal: {from_laptop:?}"
+    );
+    let (code, out) = laptop(&ns, &hosts, "operator", "operator-secret", &publish);
+    assert_eq!(code, Some(0), "{out}");
+    let end = Instant::now() + Duration::from_secs(5);
+    let mut got = None;
+    while got.is_none() && Instant::now() < end {
+        got = goals.latest().unwrap().filter(|g| g.kind == GoalKind::GPS);
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert!(got.is_some(), "the operator's goal did not arrive");
+}
+
+#[test]
+fn cutting_the_link_leaves_the_robot_driving_and_the_laptop_view_comes_back() {
+    let ns = Namespace::new("netcut");
+    let hosts = TwoHosts::new("b");
+    let port = free_port();
+    // Half speed: 16 s of replay, enough for a cut and a reconnect.
+    let _robot = robot(&ns, &hosts, port, "0.5");
+    let endpoint = format!("tcp/{}:{port}", hosts.robot_ip);
+    let bus = ns.bus("netcut-test");
+    let cmds = bus.subscriber(&topics::velocity_command()).unwrap();
+    let inspect = [
+        "inspect",
+        "--connect",
+        &endpoint,
+        "--robot",
+        "robot",
+        "--seconds",
+        "1.5",
+    ];
+    std::thread::sleep(Duration::from_secs(1));
+    let (code, view) = laptop(&ns, &hosts, "laptop", "laptop-secret", &inspect);
+    assert_eq!(code, Some(0), "{view}");
+
+    hosts.link(false);
+    // With the link down the robot keeps navigating: commands keep coming
+    // from frames the replay goes on feeding.
+    let mut seqs = Vec::new();
+    let end = Instant::now() + Duration::from_secs(2);
+    while Instant::now() < end {
+        if let Some(c) = cmds.latest().unwrap() {
+            seqs.push(c.stamp.frame_seq);
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    seqs.dedup();
+    assert!(
+        seqs.len() >= 5,
+        "the robot stalled without the laptop: {seqs:?}"
+    );
+    let (code, _) = laptop(&ns, &hosts, "laptop", "laptop-secret", &inspect);
+    assert_ne!(code, Some(0), "the laptop heard the robot over a cut link");
+
+    hosts.link(true);
+    // The laptop's view comes back once the link does.
+    let end = Instant::now() + Duration::from_secs(15);
+    loop {
+        let (code, view) = laptop(&ns, &hosts, "laptop", "laptop-secret", &inspect);
+        if code == Some(0) && view.contains("cmd/velocity") {
+            break;
+        }
+        assert!(Instant::now() < end, "the view did not come back:\n{view}");
+    }
+}
