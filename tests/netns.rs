@@ -4,7 +4,7 @@
 //! and the bridge with the shipped router config (deploy/zenoh); the laptop
 //! namespace runs `farsight inspect`.
 
-use farsight_interfaces::msg::GoalKind;
+use farsight_interfaces::msg::{CommandReason, GoalKind};
 use farsight_interfaces::topics;
 use farsight_tests::netns::TwoHosts;
 use farsight_tests::{free_port, repo_root, Namespace, Proc};
@@ -46,14 +46,13 @@ fn robot(ns: &Namespace, hosts: &TwoHosts, port: u16, speed: &str) -> Vec<Proc> 
         "robot = \"robot\"\n[zenoh]\nconfig_file = {:?}\n\
          [[export]]\ntopic = \"camera/front/image\"\ndownsample = 2\ncompression = \"jpeg\"\n\
          [[export]]\ntopic = \"perception/front/navigability\"\ndownsample = 2\ncompression = \"png\"\n\
-         [[import]]\ntopic = \"nav/goal\"\n",
+         [[import]]\ntopic = \"nav/goal\"\n[[import]]\ntopic = \"cmd/velocity\"\n",
         router.to_str().unwrap()
     );
     for t in [
         "camera/front/info",
         "nav/subgoal",
         "nav/path/visual",
-        "cmd/velocity",
         "health/inference",
         "health/subgoal-selection",
         "health/velocity-servoing",
@@ -123,7 +122,7 @@ fn a_laptop_on_another_host_sees_the_graph_and_commands_only_as_operator() {
     }
     let line = view
         .lines()
-        .find(|l| l.trim_start().starts_with("cmd/velocity"))
+        .find(|l| l.trim_start().starts_with("nav/subgoal"))
         .expect(&view);
     let rate: f64 = line.split_whitespace().nth(2).unwrap().parse().unwrap();
     assert!((7.0..13.0).contains(&rate), "{view}");
@@ -149,38 +148,62 @@ fn a_laptop_on_another_host_sees_the_graph_and_commands_only_as_operator() {
     assert_eq!(code, Some(0), "{out}");
     assert!(snap.join("camera-front.png").exists(), "{out}");
 
-    // Commands (the probe's GPS goals; the replay's goal is a local one):
-    // the laptop's are refused by the robot's router, the operator's arrive
-    // in the robot's shared memory.
+    // Commands: the probe's GPS goals (the replay's goal is a local one)
+    // and teleop velocity commands (the servo's are "tracking"). The
+    // laptop's are refused by the robot's router; the operator's arrive in
+    // the robot's shared memory.
     let bus = ns.bus("netns-test");
     let goals = bus.subscriber(&topics::goal()).unwrap();
-    let publish = [
-        "probe",
-        "net-publish-nav",
-        "--connect",
-        &endpoint,
-        "--robot",
-        "robot",
-        "--duration-s",
-        "1.5",
-    ];
-    let (code, out) = laptop(&ns, &hosts, "laptop", "laptop-secret", &publish);
-    assert_eq!(code, Some(0), "{out}");
-    let from_laptop =
-        std::iter::from_fn(|| goals.latest().unwrap()).find(|g| g.kind == GoalKind::GPS);
-    assert!(
-        from_laptop.is_none(),
-        "the laptop set a goal: {from_laptop:?}"
+    let cmds = bus.subscriber(&topics::velocity_command()).unwrap();
+    let seen = |user: &str, password: &str| -> (bool, bool) {
+        let mut p = Proc::start_in(
+            Some(&hosts.laptop),
+            "farsight",
+            &[
+                "probe",
+                "net-publish-nav",
+                "--velocity",
+                "--connect",
+                &endpoint,
+                "--robot",
+                "robot",
+                "--duration-s",
+                "1.5",
+                "--user",
+                user,
+            ],
+            &ns,
+            &[("FARSIGHT_ZENOH_PASSWORD", password)],
+        );
+        let (mut goal, mut teleop) = (false, false);
+        let end = Instant::now() + Duration::from_secs(20);
+        let code = loop {
+            if let Some(code) = p.wait_exit(Duration::from_millis(1)) {
+                break code;
+            }
+            assert!(Instant::now() < end, "the probe hangs");
+            goal |= goals
+                .latest()
+                .unwrap()
+                .is_some_and(|g| g.kind == GoalKind::GPS);
+            teleop |= cmds
+                .latest()
+                .unwrap()
+                .is_some_and(|c| c.reason == CommandReason::TELEOP);
+        };
+        assert_eq!(code, 0, "{user}: {}", p.stderr_to_end());
+        (goal, teleop)
+    };
+    assert_eq!(
+        seen("laptop", "laptop-secret"),
+        (false, false),
+        "a laptop commanded the robot"
     );
-    let (code, out) = laptop(&ns, &hosts, "operator", "operator-secret", &publish);
-    assert_eq!(code, Some(0), "{out}");
-    let end = Instant::now() + Duration::from_secs(5);
-    let mut got = None;
-    while got.is_none() && Instant::now() < end {
-        got = goals.latest().unwrap().filter(|g| g.kind == GoalKind::GPS);
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    assert!(got.is_some(), "the operator's goal did not arrive");
+    assert_eq!(
+        seen("operator", "operator-secret"),
+        (true, true),
+        "the operator's commands"
+    );
 }
 
 #[test]
@@ -230,7 +253,7 @@ fn cutting_the_link_leaves_the_robot_driving_and_the_laptop_view_comes_back() {
     let end = Instant::now() + Duration::from_secs(15);
     loop {
         let (code, view) = laptop(&ns, &hosts, "laptop", "laptop-secret", &inspect);
-        if code == Some(0) && view.contains("cmd/velocity") {
+        if code == Some(0) && view.contains("nav/subgoal") {
             break;
         }
         assert!(Instant::now() < end, "the view did not come back:\n{view}");

@@ -27,7 +27,8 @@
 //! compression = "jpeg"         # images: "none", "jpeg" or "png"
 //! jpeg_quality = 80
 //!
-//! [[import]]                   # default imports: state/pose, nav/goal, safety/estop
+//! [[import]]                   # default imports: nav/goal, safety/estop (a topic is
+//!                              # never both exported and imported: an echo loop)
 //! topic = "nav/goal"
 //! ```
 
@@ -64,7 +65,7 @@ impl Default for BridgeConfig {
                 .iter()
                 .map(|t| ExportConfig::plain(t))
                 .collect(),
-            import: ["state/pose", "nav/goal", "safety/estop"]
+            import: ["nav/goal", "safety/estop"]
                 .iter()
                 .map(|t| ImportConfig {
                     topic: t.to_string(),
@@ -226,6 +227,14 @@ impl Validate for BridgeConfig {
                         "a fixed-size farsight topic (pose, goal, estop, velocity, health, camera info, subgoal, path, angular bins)",
                     ))
                 }
+            }
+            // Each message would come back in and go out again, without end.
+            if self.export.iter().any(|e| e.topic == im.topic) {
+                return Err(ConfigError::invalid(
+                    format!("import[{i}].topic"),
+                    &im.topic,
+                    "a topic that is not also exported (an echo loop)",
+                ));
             }
         }
         Ok(())
@@ -433,9 +442,15 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.to_string().contains("import[0].topic"), "{e}");
+        let e = farsight_stage::parse_config::<BridgeConfig>(
+            "[[export]]\ntopic = \"cmd/velocity\"\n[[import]]\ntopic = \"cmd/velocity\"",
+            "b.toml",
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("echo loop"), "{e}");
         let ok =
             farsight_stage::parse_config::<BridgeConfig>("robot = \"husky1\"", "b.toml").unwrap();
-        assert_eq!(ok.import.len(), 3);
+        assert_eq!(ok.import.len(), 2);
     }
 
     #[test]

@@ -109,15 +109,22 @@ impl GraphView {
             "stage", "state", "in", "out", "dropped", "skipped", "latency ms"
         );
         for (name, h) in &self.health {
+            // A stage on a replay's or simulation's clock measures its
+            // latency against the wall clock: nonsense, shown as "-".
+            let latency = if (0.0..86_400_000.0).contains(&h.last_latency_ms) {
+                format!("{:.1}", h.last_latency_ms)
+            } else {
+                "-".into()
+            };
             s += &format!(
-                "  {:<20} {:<9} {:>8} {:>8} {:>7} {:>7} {:>10.1}  {}\n",
+                "  {:<20} {:<9} {:>8} {:>8} {:>7} {:>7} {:>10}  {}\n",
                 name,
                 h.state.name().unwrap_or("?"),
                 h.messages_in,
                 h.messages_out,
                 h.dropped,
                 h.skipped,
-                h.last_latency_ms,
+                latency,
                 h.reason.as_str()
             );
         }

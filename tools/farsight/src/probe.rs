@@ -84,6 +84,10 @@ pub struct NetPublishNavArgs {
     robot: String,
     #[arg(long, default_value_t = 10.0)]
     duration_s: f64,
+    /// Also send a teleop velocity command (0.2 m/s ahead) each time: what
+    /// an operator's joystick does, and what a laptop must not be able to.
+    #[arg(long)]
+    velocity: bool,
 }
 
 /// The value of byte `i` of test frame `seq`: changes with both, so a torn or
@@ -290,6 +294,7 @@ fn net_publish_nav(a: NetPublishNavArgs) -> Result<()> {
     let bus = NetBus::open(config, &a.robot).context("opening zenoh session")?;
     let mut pose_pub = bus.publisher(&topics::pose())?;
     let mut goal_pub = bus.publisher(&topics::goal())?;
+    let mut cmd_pub = bus.publisher(&topics::velocity_command())?;
     let end = Instant::now() + Duration::from_secs_f64(a.duration_s);
     let mut seq = 1;
     while Instant::now() < end {
@@ -308,6 +313,14 @@ fn net_publish_nav(a: NetPublishNavArgs) -> Result<()> {
             tolerance_m: 2.0,
             ..Default::default()
         })?;
+        if a.velocity {
+            cmd_pub.publish(&VelocityCommand {
+                stamp,
+                linear_mps: 0.2,
+                angular_radps: 0.0,
+                reason: CommandReason::TELEOP,
+            })?;
+        }
         seq += 1;
         std::thread::sleep(Duration::from_millis(50));
     }
