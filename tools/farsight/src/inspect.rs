@@ -315,6 +315,20 @@ pub fn snapshot(
         std::fs::write(&p, farsight_imaging::encode_png(&header, &rgb)?)?;
         written.push(p);
     }
+    let heading = newest
+        .get("nav/subgoal")
+        .and_then(|b| wire::decode_message::<Subgoal>(b).ok())
+        .map(|s| s.heading_rad as f64)
+        .filter(|h| h.is_finite());
+    if let Some(b) = newest
+        .get("bins/angular")
+        .and_then(|b| wire::decode_message::<AngularBins>(b).ok())
+    {
+        let (header, rgb) = polar_plot(&b, heading);
+        let p = out.join("bins-angular.png");
+        std::fs::write(&p, farsight_imaging::encode_png(&header, &rgb)?)?;
+        written.push(p);
+    }
     for layer in ["fused", "local"] {
         let Some(bytes) = newest.get(&format!("costmap/{layer}")) else {
             continue;
@@ -342,9 +356,81 @@ pub fn snapshot(
     Ok(written)
 }
 
+/// LRN's angular bins as a polar plot seen from above (forward up, left
+/// left): each observed bin a wedge as long as its score (green), unobserved
+/// bins grey, the chosen heading a red ray.
+pub fn polar_plot(bins: &AngularBins, heading_rad: Option<f64>) -> (ImageHeader, Vec<u8>) {
+    const S: usize = 401;
+    let c = (S / 2) as f64;
+    let mut rgb = vec![255u8; S * S * 3];
+    let scores = bins.scores.as_slice();
+    let observed = bins.observed.as_slice();
+    let max = scores.iter().copied().fold(1e-6f32, f32::max) as f64;
+    let width = bins.bin_width_rad as f64;
+    for y in 0..S {
+        for x in 0..S {
+            // Robot frame: x forward (image up), y left (image left).
+            let (fx, fy) = (c - y as f64, c - x as f64);
+            let r = fx.hypot(fy) / c;
+            if r > 1.0 {
+                continue;
+            }
+            let a = fy.atan2(fx);
+            let k = ((a - bins.first_bin_start_rad as f64) / width)
+                .rem_euclid(std::f64::consts::TAU / width) as usize;
+            let Some(&score) = scores.get(k) else {
+                continue;
+            };
+            let p = &mut rgb[(y * S + x) * 3..][..3];
+            if observed.get(k) != Some(&1) {
+                p.copy_from_slice(&[225, 225, 225]);
+            } else if r <= score as f64 / max {
+                p.copy_from_slice(&[60, 170, 60]);
+            }
+        }
+    }
+    if let Some(h) = heading_rad {
+        for i in 0..(c as usize) {
+            let (fx, fy) = (i as f64 * h.cos(), i as f64 * h.sin());
+            let (x, y) = ((c - fy) as usize, (c - fx) as usize);
+            if x < S && y < S {
+                rgb[(y * S + x) * 3..][..3].copy_from_slice(&[220, 0, 0]);
+            }
+        }
+    }
+    let header = ImageHeader::packed(bins.stamp, 0, S as u32, S as u32, PixelEncoding::RGB8);
+    (header, rgb)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_polar_plot_draws_wedges_by_score_and_the_heading_ray() {
+        // 8 bins of 45 degrees from -180: bin 4 covers [0, 45) degrees (ahead-left).
+        let mut scores = [0.0f32; 8];
+        scores[4] = 1.0;
+        let mut observed = [1u8; 8];
+        observed[0] = 0;
+        let bins = AngularBins {
+            first_bin_start_rad: -std::f32::consts::PI,
+            bin_width_rad: std::f32::consts::FRAC_PI_4,
+            scores: farsight_interfaces::fixed::FixedVec::from_slice(&scores).unwrap(),
+            observed: farsight_interfaces::fixed::FixedVec::from_slice(&observed).unwrap(),
+            ..Default::default()
+        };
+        let (h, rgb) = polar_plot(&bins, Some(-std::f64::consts::FRAC_PI_2));
+        let px = |x: usize, y: usize| &rgb[(y * h.width as usize + x) * 3..][..3];
+        // Ahead and a little left of the centre (200, 200): bin 4's wedge.
+        assert_eq!(px(190, 120), [60, 170, 60]);
+        // Ahead-right (bin 3, score 0): white.
+        assert_eq!(px(210, 120), [255, 255, 255]);
+        // Behind and a little right is bin 0 ([-180, -135) degrees), unobserved: grey.
+        assert_eq!(px(205, 330), [225, 225, 225]);
+        // The heading ray points right (-90 degrees).
+        assert_eq!(px(300, 200), [220, 0, 0]);
+    }
 
     #[test]
     fn the_view_counts_rates_latency_and_health() {
