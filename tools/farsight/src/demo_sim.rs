@@ -168,50 +168,45 @@ pub fn run(d: SimDemo) -> Result<()> {
     std::fs::create_dir_all(&d.out)?;
     let out = std::fs::canonicalize(&d.out)?;
     let prefix = format!("simdemo{}_", std::process::id());
-    let mut stages: Vec<Stage> = Vec::new();
-    match d.method {
-        Method::DstarLite => {
-            let fusion = write(
-                &out,
-                "costmap-fusion.toml",
-                &sim_tuning::to_toml(&sim_tuning::dstar_costmap_fusion())?,
-            )?;
-            let planner = write(
-                &out,
-                "subgoal-selection.toml",
-                &sim_tuning::to_toml(&sim_tuning::dstar_subgoal_selection())?,
-            )?;
-            let servo = write(
-                &out,
-                "velocity-servoing.toml",
-                &sim_tuning::to_toml(&sim_tuning::dstar_servo())?,
-            )?;
-            stages.push(start_ready("costmap-fusion", &fusion, &prefix, &out)?);
-            stages.push(start_ready("subgoal-selection", &planner, &prefix, &out)?);
-            stages.push(start_ready("velocity-servoing", &servo, &prefix, &out)?);
-        }
+    // Each stage's config file, in start order.
+    let configs: Vec<(&'static str, String)> = match d.method {
+        Method::DstarLite => vec![
+            (
+                "costmap-fusion",
+                sim_tuning::to_toml(&sim_tuning::dstar_costmap_fusion())?,
+            ),
+            (
+                "subgoal-selection",
+                sim_tuning::to_toml(&sim_tuning::dstar_subgoal_selection())?,
+            ),
+            (
+                "velocity-servoing",
+                sim_tuning::to_toml(&sim_tuning::dstar_servo())?,
+            ),
+        ],
         Method::Povnav => {
+            let mut c = Vec::new();
             if !d.oracle {
-                let inference = write(
-                    &out,
-                    "inference.toml",
-                    &format!("camera = \"front\"\nbackend = \"hsv\"\n{HSV_GROUND}"),
-                )?;
-                stages.push(start_ready("inference", &inference, &prefix, &out)?);
+                c.push((
+                    "inference",
+                    format!("camera = \"front\"\nbackend = \"hsv\"\n{HSV_GROUND}"),
+                ));
             }
-            let planner = write(
-                &out,
-                "subgoal-selection.toml",
-                &sim_tuning::to_toml(&sim_tuning::povnav_subgoal_selection())?,
-            )?;
-            let servo = write(
-                &out,
-                "velocity-servoing.toml",
-                &sim_tuning::to_toml(&sim_tuning::povnav_servo())?,
-            )?;
-            stages.push(start_ready("subgoal-selection", &planner, &prefix, &out)?);
-            stages.push(start_ready("velocity-servoing", &servo, &prefix, &out)?);
+            c.push((
+                "subgoal-selection",
+                sim_tuning::to_toml(&sim_tuning::povnav_subgoal_selection())?,
+            ));
+            c.push((
+                "velocity-servoing",
+                sim_tuning::to_toml(&sim_tuning::povnav_servo())?,
+            ));
+            c
         }
+    };
+    let mut stages: Vec<Stage> = Vec::new();
+    for (stage, text) in &configs {
+        let config = write(&out, &format!("{stage}.toml"), text)?;
+        stages.push(start_ready(stage, &config, &prefix, &out)?);
     }
     eprintln!(
         "stages up ({}); driving {} with {:?}{}...",

@@ -25,7 +25,8 @@ use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::topics::kind_of;
 use farsight_interfaces::transport::any::{AnyPublisher, AnySubscriber};
 use farsight_interfaces::transport::ipc::Bus;
-use std::collections::{BTreeMap, BTreeSet};
+use std::cmp::Reverse;
+use std::collections::{BTreeMap, BTreeSet, BinaryHeap};
 use std::time::{Duration, Instant};
 
 /// How fast messages go out.
@@ -133,6 +134,21 @@ fn published_name(opts: &ReplayOptions, recorded: &str) -> String {
         .map_or_else(|| recorded.to_string(), |(_, to)| to.clone())
 }
 
+/// How far (capture time) a message may be recorded out of order and still
+/// go out in order.
+const REORDER_WINDOW_NS: u64 = 1_000_000_000;
+
+/// A message waiting in the reorder window, ordered by capture time, the
+/// driving topic last among equal times, then file order.
+#[derive(Debug, PartialEq, Eq, PartialOrd, Ord)]
+struct Pending {
+    capture_time_ns: u64,
+    driving: bool,
+    index: u64,
+    topic: String,
+    data: Vec<u8>,
+}
+
 /// An answer topic's subscriber and the frames it has carried.
 struct Answers {
     topics: Vec<(String, AnySubscriber, BTreeSet<u64>, u64)>,
@@ -173,26 +189,39 @@ pub fn replay(
             });
         }
     }
-    let (messages, truncated) = rec.messages()?;
-    let mut selected: Vec<&RecordedMessage> = messages
-        .iter()
-        .filter(|m| &*m.encoding == MESSAGE_ENCODING && matches_any(&opts.topics, &m.topic))
-        .collect();
-    let is_driving = |m: &RecordedMessage| {
-        opts.driving_topic.as_deref() == Some(published_name(opts, &m.topic).as_str())
+    let selected = |m: &RecordedMessage| {
+        &*m.encoding == MESSAGE_ENCODING && matches_any(&opts.topics, &m.topic)
     };
-    selected.sort_by_key(|m| (m.capture_time_ns, is_driving(m)));
+    let is_driving =
+        |topic: &str| opts.driving_topic.as_deref() == Some(published_name(opts, topic).as_str());
+    // A first pass over the file keeps nothing but sizes and the start of
+    // the clock: a recording of rendered frames can decompress to a hundred
+    // times its size, so the messages are streamed, never all held.
+    let mut largest: BTreeMap<String, usize> = BTreeMap::new();
+    let (mut first_driving, mut first_stamped) = (None, None);
+    rec.for_each(|m| {
+        if selected(&m) {
+            let e = largest.entry(m.topic.to_string()).or_default();
+            *e = (*e).max(m.data.len());
+            if is_driving(&m.topic) {
+                first_driving.get_or_insert(m.capture_time_ns);
+            }
+            if m.capture_time_ns > 0 {
+                first_stamped.get_or_insert(m.capture_time_ns);
+            }
+        }
+        Ok(())
+    })?;
+    // The clock starts at the driving topic's first frame (else the first
+    // stamped message): a goal stamped 0 must not count as the start of a
+    // recording made on the wall clock.
+    let first_capture = first_driving.or(first_stamped).unwrap_or(0);
     // Slice publishers allocate once: size each for its topic's largest message.
-    let mut largest: BTreeMap<&str, usize> = BTreeMap::new();
-    for m in &selected {
-        let e = largest.entry(&m.topic).or_default();
-        *e = (*e).max(m.data.len());
-    }
-    let mut publishers: BTreeMap<&str, (String, AnyPublisher)> = BTreeMap::new();
-    for (&t, &bytes) in &largest {
+    let mut publishers: BTreeMap<String, (String, AnyPublisher)> = BTreeMap::new();
+    for (t, &bytes) in &largest {
         let name = published_name(opts, t);
         let p = AnyPublisher::open(bus, &name, bytes)?;
-        publishers.insert(t, (name, p));
+        publishers.insert(t.clone(), (name, p));
     }
     let mut answers = Answers {
         topics: opts
@@ -205,21 +234,10 @@ pub fn replay(
     // give them a moment before the first message, which some (the goal)
     // only ever get once.
     std::thread::sleep(Duration::from_millis(200));
-    let mut report = ReplayReport {
-        truncated,
-        ..Default::default()
-    };
+    let mut report = ReplayReport::default();
     let mut driving: Vec<u64> = Vec::new();
     let start = Instant::now();
-    // The clock starts at the driving topic's first frame (else the first
-    // stamped message): a goal stamped 0 must not count as the start of a
-    // recording made on the wall clock.
-    let first_capture = selected
-        .iter()
-        .find(|m| is_driving(m))
-        .or_else(|| selected.iter().find(|m| m.capture_time_ns > 0))
-        .map_or(0, |m| m.capture_time_ns);
-    for m in &selected {
+    let mut emit = |m: &Pending| -> Result<(), RecordingError> {
         if let Pace::Recorded { factor } = opts.pace {
             let due = Duration::from_secs_f64(
                 m.capture_time_ns.saturating_sub(first_capture) as f64 * 1e-9 / factor.max(1e-6),
@@ -233,18 +251,18 @@ pub fn replay(
                 );
             }
         }
-        if is_driving(m) {
+        if m.driving {
             // Stages that connected after a fixed-size message went out
             // (the goal is sent once) get it before the frame that needs it.
             for (_, p) in publishers.values() {
                 p.deliver_history()?;
             }
         }
-        let (name, p) = publishers.get_mut(&*m.topic).expect("opened above");
+        let (name, p) = publishers.get_mut(&m.topic).expect("opened above");
         let stamp = p.publish_wire(&m.data)?;
         *report.published.entry(name.clone()).or_default() += 1;
         answers.take(&mut answers_out)?;
-        if opts.driving_topic.as_deref() == Some(name.as_str()) {
+        if m.driving {
             driving.push(stamp.frame_seq);
             if let Pace::Lockstep { timeout } = opts.pace {
                 let end = Instant::now() + timeout;
@@ -254,7 +272,40 @@ pub fn replay(
                 }
             }
         }
+        Ok(())
+    };
+    // Messages go out in capture-time order, the driving topic's last among
+    // equal times, through a reorder window of REORDER_WINDOW_NS of capture
+    // time (the recorder writes what arrives together in its own order).
+    let mut window: BinaryHeap<Reverse<Pending>> = BinaryHeap::new();
+    let mut newest = 0u64;
+    let mut index = 0u64;
+    let truncated = rec.for_each(|m| {
+        if !selected(&m) {
+            return Ok(());
+        }
+        newest = newest.max(m.capture_time_ns);
+        index += 1;
+        window.push(Reverse(Pending {
+            capture_time_ns: m.capture_time_ns,
+            driving: is_driving(&m.topic),
+            index,
+            topic: m.topic.to_string(),
+            data: m.data.into_owned(),
+        }));
+        while window
+            .peek()
+            .is_some_and(|Reverse(p)| p.capture_time_ns + REORDER_WINDOW_NS <= newest)
+        {
+            let Reverse(p) = window.pop().expect("peeked");
+            emit(&p)?;
+        }
+        Ok(())
+    })?;
+    while let Some(Reverse(p)) = window.pop() {
+        emit(&p)?;
     }
+    report.truncated = truncated;
     let end = Instant::now() + opts.drain;
     while Instant::now() < end {
         answers.take(&mut answers_out)?;
