@@ -67,6 +67,11 @@ else
   say "no models folder at $models: put the ONNX files under /usr/local/share/farsight/models"
 fi
 
+# The simulator models trained in this repository travel with their configs.
+for d in "$repo"/deploy/models/*/; do
+  act cp -r "${d%/}" "$prefix/usr/local/share/farsight/models/"
+done
+
 # Model configs: their relative model paths point at the installed models.
 for f in "$repo"/deploy/models/*.toml; do
   dest="$prefix/etc/farsight/models/$(basename "$f")"

@@ -105,14 +105,7 @@ fn decode(encoding: &str, schema: &str, data: &[u8]) -> Result<(ImageHeader, Vec
         ("cdr", "sensor_msgs/msg/CompressedImage") => ros_cdr::decode_compressed(data).map_err(|e| format!("{e:#}"))?,
         (FARSIGHT_ENCODING, _) => {
             let (h, px): (ImageHeader, &[u8]) = wire::split_slice(data).map_err(|e| e.to_string())?;
-            if h.encoding.is_compressed() {
-                let (mut dh, dp) = farsight_imaging::decode_image(px).map_err(|e| e.to_string())?;
-                dh.stamp = h.stamp;
-                (dh, dp)
-            } else {
-                h.validate(px.len()).map_err(|e| e.to_string())?;
-                (h, px.to_vec())
-            }
+            farsight_imaging::decode_frame(h, px).map_err(|e| e.to_string())?
         }
         (e, s) => return Err(format!("channel encoding {e:?} with schema {s:?} is not an image this stage reads (ROS 2 sensor_msgs/msg/Image or CompressedImage in cdr, or farsight-wire)")),
     };

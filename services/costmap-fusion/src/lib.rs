@@ -5,6 +5,7 @@
 //! - [`grid`]: a world-frame grid that scrolls with the robot;
 //! - [`kalman`]: the per-cell far-field filter;
 //! - [`swath`]: polar bins rasterised into the cells they cover;
+//! - [`labels`]: FITAM's far-field label rule over a swath's cells;
 //! - [`map`]: the fused map: fixed near-field cells, Kalman far-field cells,
 //!   the planning cost, and costmap messages for each layer;
 //! - [`near_field`]: depth images and class maps -> fixed near-field cells;
@@ -29,6 +30,7 @@
 pub mod grid;
 pub mod hip;
 pub mod kalman;
+pub mod labels;
 pub mod map;
 pub mod near_field;
 pub mod stage;

@@ -248,6 +248,22 @@ pub fn decode_jpeg(bytes: &[u8]) -> Result<(ImageHeader, Vec<u8>), ImageError> {
     Ok((header, data))
 }
 
+/// A frame as it travels (its header and pixels, which may be a JPEG or
+/// PNG) -> the header and raw pixels, keeping the frame's stamp.
+pub fn decode_frame(
+    header: ImageHeader,
+    pixels: &[u8],
+) -> Result<(ImageHeader, Vec<u8>), ImageError> {
+    if header.encoding.is_compressed() {
+        let (mut h, p) = decode_image(pixels)?;
+        h.stamp = header.stamp;
+        Ok((h, p))
+    } else {
+        header.validate(pixels.len())?;
+        Ok((header, pixels.to_vec()))
+    }
+}
+
 /// Decodes a PNG or JPEG file, told apart by its first bytes.
 pub fn decode_image(bytes: &[u8]) -> Result<(ImageHeader, Vec<u8>), ImageError> {
     if bytes.starts_with(&[0xff, 0xd8]) {

@@ -10,6 +10,10 @@
 //!   (FITAM's baseline);
 //! - `fitam_gt`: the same plus far-field observations with ground-truth labels
 //!   (FITAM's "GT labels" row);
+//! - `fitam_learned`: the same with the far field from the shipped learned
+//!   model (`deploy/models/sim-fitam`, `cargo xtask train`) on the rendered
+//!   front camera, through the inference and bin-projection library code
+//!   (FITAM's learned row);
 //! - `povnav_oracle`: POVNav on the rendered class image (oracle perception)
 //!   -> the POVNav servo law, with the demo's configs (`sim_tuning`) and the
 //!   graph's message precision, so a trial drives the track that
@@ -48,10 +52,11 @@ use farsight_velocity_servoing::{
 };
 use std::time::Instant;
 
-pub const METHODS: [&str; 5] = [
+pub const METHODS: [&str; 6] = [
     "goal_heuristic",
     "dstar_no_far_field",
     "fitam_gt",
+    "fitam_learned",
     "povnav_oracle",
     "pog_only",
 ];
@@ -70,7 +75,75 @@ struct Controller {
     geometry: PolarGeometry,
     labels: LabelRules,
     rig: Option<PovnavRig>,
+    learned: Option<FarFieldRig>,
     step: u64,
+}
+
+/// The shipped FITAM model's config, relative to the repository root.
+pub const FITAM_MODEL: &str = "deploy/models/sim-fitam/model.toml";
+
+/// FITAM's learned far field as the graph computes it: the simulator's front
+/// camera, the inference stage's backend, bin projection's slice mapping.
+struct FarFieldRig {
+    renderer: Renderer,
+    frame: Frame,
+    backend: farsight_inference::Backend,
+    slice_bins: Option<Vec<Option<usize>>>,
+    cfg: farsight_bin_projection::fitam::FitamBinsConfig,
+    camera: farsight_interfaces::camera::Camera,
+}
+
+impl FarFieldRig {
+    fn new() -> Result<Self> {
+        use anyhow::Context;
+        let (w, h) = sim_tuning::IMAGE_SIZE;
+        let camera = front_camera(w, h);
+        let config =
+            farsight_inference::model_config::ModelConfig::load(std::path::Path::new(FITAM_MODEL))
+                .with_context(|| {
+                    format!("{FITAM_MODEL} (run the benchmark from the repository root)")
+                })?;
+        let model = farsight_inference::onnx::OnnxModel::load(&config)?;
+        Ok(Self {
+            renderer: Renderer::new(&camera, 150.0),
+            frame: Frame::default(),
+            backend: farsight_inference::Backend::Onnx(Box::new(model)),
+            slice_bins: None,
+            cfg: Default::default(),
+            camera,
+        })
+    }
+
+    /// The far-field observation of the robot's current view.
+    fn observe(&mut self, e: &Episode) -> Result<Vec<farsight_interfaces::msg::PolarCell>> {
+        use farsight_interfaces::msg::{ImageHeader, PixelEncoding};
+        self.renderer
+            .render(&e.scenario.world, e.robot.pose(), &mut self.frame);
+        let f = &self.frame;
+        let header = ImageHeader::packed(
+            Stamp::default(),
+            0,
+            f.width as u32,
+            f.height as u32,
+            PixelEncoding::RGB8,
+        );
+        let p = self.backend.run(
+            &header,
+            &f.rgb,
+            None,
+            &mut farsight_inference::onnx::Timings::default(),
+        )?;
+        let (shape, logits) = p
+            .far_field
+            .ok_or_else(|| anyhow::anyhow!("{FITAM_MODEL}: no far_field_ensemble output"))?;
+        let heading_bins = self.cfg.heading_bins;
+        let bins = self.slice_bins.get_or_insert_with(|| {
+            farsight_bin_projection::fitam::slice_heading_bins(&self.camera, shape[0], heading_bins)
+        });
+        Ok(farsight_bin_projection::fitam::polar_observation(
+            &logits, shape, bins, &self.cfg,
+        )?)
+    }
 }
 
 /// POVNav as the demo's graph runs it: the simulator's camera, the stage
@@ -186,9 +259,12 @@ fn sim_goal(goal: [f64; 2]) -> NavGoal {
 }
 
 impl Controller {
-    fn new(method: &'static str) -> Self {
+    fn new(method: &'static str) -> Result<Self> {
         let rig = matches!(method, "povnav_oracle" | "pog_only").then(PovnavRig::new);
-        Self {
+        let learned = (method == "fitam_learned")
+            .then(FarFieldRig::new)
+            .transpose()?;
+        Ok(Self {
             method,
             servo: ServoConfig {
                 max_linear_mps: 1.5,
@@ -206,11 +282,12 @@ impl Controller {
             geometry: PolarGeometry::fitam_default(),
             labels: LabelRules::default(),
             rig,
+            learned,
             step: 0,
-        }
+        })
     }
 
-    fn command(&mut self, e: &Episode) -> (f64, f64) {
+    fn command(&mut self, e: &Episode) -> Result<(f64, f64)> {
         self.step += 1;
         let r = e.robot;
         let pose = Pose {
@@ -221,7 +298,7 @@ impl Controller {
         if let Some(rig) = &mut self.rig {
             let (v, w) = rig.command(e, &pose, &mut self.limiter, self.method == "pog_only");
             // The graph's velocity command carries f32.
-            return (v as f32 as f64, w as f32 as f64);
+            return Ok((v as f32 as f64, w as f32 as f64));
         }
         let goal_robot = pose.to_robot_frame(e.scenario.goal);
         let goal_bearing = goal_robot[1].atan2(goal_robot[0]);
@@ -232,9 +309,12 @@ impl Controller {
                 self.fusion.recenter(r.x_m, r.y_m);
                 let (lh, lc) = self.sensor.observe(world, r.x_m, r.y_m, Stamp::default());
                 self.fusion.apply_local_costmap(&lh, &lc);
-                let far = self.method == "fitam_gt";
+                let far = self.method == "fitam_gt" || self.learned.is_some();
                 if far && self.step % 10 == 1 {
-                    let bins = ground_truth_bins(world, &self.geometry, r.pose(), &self.labels);
+                    let bins = match &mut self.learned {
+                        Some(l) => l.observe(e)?,
+                        None => ground_truth_bins(world, &self.geometry, r.pose(), &self.labels),
+                    };
                     self.fusion
                         .observe_far_field(&self.geometry, &bins, r.x_m, r.y_m, r.yaw_rad);
                     self.fusion.add_process_noise();
@@ -258,7 +338,7 @@ impl Controller {
                 }
             }
         };
-        self.limiter.limit(target, DT_S, &self.servo)
+        Ok(self.limiter.limit(target, DT_S, &self.servo))
     }
 }
 
@@ -287,10 +367,10 @@ pub fn trial(
             ..Default::default()
         },
     );
-    let mut c = Controller::new(method);
+    let mut c = Controller::new(method)?;
     let mut steps = 0;
     loop {
-        let cmd = c.command(&e);
+        let cmd = c.command(&e)?;
         steps += 1;
         let outcome = e.step(cmd, DT_S);
         if let Some(t) = &mut trace {

@@ -10,6 +10,7 @@
 //! farsight record --topics 'camera/**' --out run.mcap               # record; --info FILE summarises
 //! farsight replay run.mcap --speed 4                                # or --lockstep --driving T --answer T
 //! farsight diff golden.mcap run.mcap                                # field-by-field comparison
+//! farsight dataset run.mcap --out data/train                        # LRN + FITAM labels from a recording
 //! farsight inspect --connect tcp/ROBOT:7447 --robot NAME            # the graph from a laptop
 //! ```
 
@@ -19,6 +20,7 @@ mod bench_nav;
 mod bench_navigation;
 mod bench_planning;
 mod bench_recorder;
+mod dataset;
 mod demo;
 mod demo_sim;
 mod hip_library;
@@ -51,6 +53,8 @@ enum Command {
     Bench(bench::BenchCommand),
     /// The closed loop in simulation (default: bug-trap), or with --orfd the graph on the real ORFD frames.
     Demo(demo::DemoArgs),
+    /// Self-supervised training sets (LRN hotspots, FITAM far-field classes) from recordings.
+    Dataset(dataset::DatasetArgs),
     /// Run a model on image files offline, as the inference stage would, and write PNGs.
     Infer(infer::InferArgs),
     /// Build HIP's trajectory library (k-means of recorded futures) from poses.
@@ -73,6 +77,7 @@ fn main() {
         Command::Bench(c) => bench::run(c),
         Command::Demo(a) => demo::run(a),
         Command::Infer(a) => infer::run(a),
+        Command::Dataset(a) => dataset::run(a),
         Command::HipLibrary(a) => hip_library::run(a),
         Command::Record(a) => recording::run_record(a),
         Command::Replay(a) => recording::run_replay(a),

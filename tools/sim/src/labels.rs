@@ -6,102 +6,33 @@
 //! uses the same rule on recorded local maps.
 
 use crate::world::World;
-use farsight_costmap_fusion::swath::{for_each_swath_cell, PolarGeometry};
+use farsight_costmap_fusion::labels::swath_labels;
+pub use farsight_costmap_fusion::labels::LabelRules;
+use farsight_costmap_fusion::swath::PolarGeometry;
 use farsight_interfaces::msg::PolarCell;
 
-/// FITAM's speed classes (m/s) and the label thresholds.
-#[derive(Debug, Clone, PartialEq)]
-pub struct LabelRules {
-    pub class_speeds_mps: Vec<f64>,
-    pub rho_class: f64,
-    pub rho_bin: f64,
-    /// Variance given to a ground-truth measurement.
-    pub variance: f32,
-}
-
-impl Default for LabelRules {
-    fn default() -> Self {
-        Self {
-            class_speeds_mps: vec![0.5, 2.25, 4.25],
-            rho_class: 0.2,
-            rho_bin: 0.2,
-            variance: 0.05,
-        }
-    }
-}
-
-impl LabelRules {
-    /// The class of a cell cost: the fastest class no faster than the cell
-    /// allows (lethal cells count as the slowest class, as FITAM's far-field
-    /// classes have no lethal one).
-    pub fn class_of(&self, cost_s_per_m: f32) -> usize {
-        let speed = 1.0 / cost_s_per_m as f64;
-        let mut order: Vec<usize> = (0..self.class_speeds_mps.len()).collect();
-        order.sort_by(|&a, &b| self.class_speeds_mps[b].total_cmp(&self.class_speeds_mps[a]));
-        order
-            .into_iter()
-            .find(|&c| self.class_speeds_mps[c] <= speed + 1e-9)
-            .unwrap_or_else(|| {
-                (0..self.class_speeds_mps.len())
-                    .min_by(|&a, &b| self.class_speeds_mps[a].total_cmp(&self.class_speeds_mps[b]))
-                    .expect("classes")
-            })
-    }
-}
-
 /// Polar cells (heading-major) labelled from the true world around a robot
-/// at `pose` (x, y, yaw).
+/// at `pose` (x, y, yaw); unlabelled swaths carry NaN (no measurement).
 pub fn ground_truth_bins(
     world: &World,
     geometry: &PolarGeometry,
     pose: [f64; 3],
     rules: &LabelRules,
 ) -> Vec<PolarCell> {
-    let radial = geometry.radial_bins();
-    let classes = rules.class_speeds_mps.len();
-    let mut counts = vec![vec![0usize; classes + 1]; geometry.heading_bins * radial];
-    for_each_swath_cell(
-        geometry,
-        pose[0],
-        pose[1],
-        pose[2],
-        world.resolution_m,
-        |gx, gy, h, r| {
-            let slot = &mut counts[h * radial + r];
-            slot[classes] += 1; // every swath cell
-            if world.contains(gx, gy) {
-                slot[rules.class_of(world.cost_s_per_m(gx, gy))] += 1;
-            }
+    swath_labels(geometry, pose, world.resolution_m, rules, |gx, gy| {
+        world.contains(gx, gy).then(|| world.cost_s_per_m(gx, gy))
+    })
+    .into_iter()
+    .map(|label| match label {
+        Some(l) => l.to_polar_cell(rules),
+        None => PolarCell {
+            cost_s_per_m: f32::NAN,
+            variance: f32::INFINITY,
+            class_id: u32::MAX,
+            probability: 0.0,
         },
-    );
-    counts
-        .iter()
-        .map(|n| {
-            let swath = n[classes];
-            let seen: usize = n[..classes].iter().sum();
-            if swath == 0 || (seen as f64) < rules.rho_bin * swath as f64 {
-                return PolarCell {
-                    cost_s_per_m: f32::NAN,
-                    variance: f32::INFINITY,
-                    class_id: u32::MAX,
-                    probability: 0.0,
-                };
-            }
-            let mut by_speed: Vec<usize> = (0..classes).collect();
-            by_speed
-                .sort_by(|&a, &b| rules.class_speeds_mps[b].total_cmp(&rules.class_speeds_mps[a]));
-            let c = by_speed
-                .into_iter()
-                .find(|&c| n[c] as f64 >= rules.rho_class * seen as f64)
-                .expect("some class covers rho_class <= 1/classes of the seen cells");
-            PolarCell {
-                cost_s_per_m: (1.0 / rules.class_speeds_mps[c]) as f32,
-                variance: rules.variance,
-                class_id: c as u32,
-                probability: n[c] as f32 / seen as f32,
-            }
-        })
-        .collect()
+    })
+    .collect()
 }
 
 #[cfg(test)]
@@ -112,10 +43,6 @@ mod tests {
     #[test]
     fn the_cheapest_class_covering_rho_class_wins() {
         let rules = LabelRules::default();
-        assert_eq!(rules.class_of(0.2), 2, "road: 5 m/s >= 4.25");
-        assert_eq!(rules.class_of(0.5), 0, "grass: 2 m/s < 2.25");
-        assert_eq!(rules.class_of(0.4), 1);
-        assert_eq!(rules.class_of(f32::INFINITY), 0);
         // Forest, with a 12 m wide road north-south 30 m east of the robot.
         let mut w = World::new(300, 300, Cover::Forest);
         w.fill_cover(178, 0, 189, 299, Cover::Road);

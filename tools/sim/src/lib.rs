@@ -25,6 +25,7 @@
 //! ```
 
 pub mod episode;
+pub mod expert;
 pub mod labels;
 pub mod render;
 pub mod rng;

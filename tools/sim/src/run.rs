@@ -34,6 +34,16 @@ pub enum ClockMode {
     Realtime,
 }
 
+/// Who drives the robot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Drive {
+    /// The stage graph's velocity commands.
+    Graph,
+    /// [`crate::expert::Expert`]: A* over the true map, for training
+    /// recordings; no graph needed, and the run is as fast as rendering.
+    Expert,
+}
+
 #[derive(Debug, Clone, clap::Args)]
 pub struct RunArgs {
     #[arg(long, default_value = "bug-trap")]
@@ -74,6 +84,41 @@ pub struct RunArgs {
     pub command_timeout_s: f64,
     #[arg(long, default_value = "out/sim")]
     pub out: PathBuf,
+    /// Who drives: the graph's commands, or the expert (A* on the true map).
+    #[arg(long, value_enum, default_value = "graph")]
+    pub drive: Drive,
+    /// Also write what the simulator publishes (each camera's image and
+    /// info, the pose, the local costmap) into this MCAP file, every frame,
+    /// from this process: nothing skipped, whatever the pace.
+    #[arg(long)]
+    pub record: Option<PathBuf>,
+    /// With --record: write camera frames only every n-th frame (poses and
+    /// local costmaps still every frame); training sets use every 5th.
+    #[arg(long, default_value_t = 1)]
+    pub record_every: u64,
+}
+
+/// The simulator's own recording (see `--record`).
+struct SimRecorder(farsight_recording::write::RecordingWriter);
+
+impl SimRecorder {
+    fn message<M: serde::Serialize>(&mut self, topic: &str, stamp: Stamp, msg: &M) -> Result<()> {
+        let bytes = farsight_interfaces::transport::wire::encode_message(msg)?;
+        self.0.write(topic, stamp, stamp.capture_time_ns, &bytes)?;
+        Ok(())
+    }
+
+    fn slice<H: serde::Serialize, E: bytemuck::Pod>(
+        &mut self,
+        topic: &str,
+        stamp: Stamp,
+        header: &H,
+        data: &[E],
+    ) -> Result<()> {
+        let bytes = farsight_interfaces::transport::wire::encode_slice(header, data)?;
+        self.0.write(topic, stamp, stamp.capture_time_ns, &bytes)?;
+        Ok(())
+    }
 }
 
 /// The default simulated camera's horizontal field of view. Wide, as on
@@ -150,6 +195,22 @@ impl CameraRig {
             },
             camera,
         })
+    }
+
+    /// Writes the last rendered frame's image and camera model.
+    fn record(&self, rec: &mut SimRecorder, stamp: Stamp) -> Result<()> {
+        let (w, h) = (self.camera.model.width, self.camera.model.height);
+        rec.message(
+            topics::camera_info(&self.camera.name).name(),
+            stamp,
+            &self.camera.to_info(stamp),
+        )?;
+        rec.slice(
+            topics::camera_image(&self.camera.name).name(),
+            stamp,
+            &ImageHeader::packed(stamp, self.camera.id, w, h, PixelEncoding::RGB8),
+            &self.frame.rgb,
+        )
     }
 
     /// Renders the robot's view and publishes info, depth, the oracle's
@@ -285,6 +346,33 @@ pub fn run(a: RunArgs) -> Result<Summary> {
         a.yaw_noise_deg
     );
     let mut noise = SplitMix64::new(a.seed ^ 0x9053);
+    let mut expert = match a.drive {
+        Drive::Graph => None,
+        Drive::Expert => Some(
+            crate::expert::Expert::new(
+                &episode.scenario.world,
+                [episode.robot.x_m, episode.robot.y_m],
+                episode.scenario.goal,
+                1.5,
+            )
+            .with_context(|| {
+                format!(
+                    "--drive expert: no path to the goal in {} seed {}",
+                    a.scenario, a.seed
+                )
+            })?,
+        ),
+    };
+    let mut recorder = match &a.record {
+        Some(p) => Some(SimRecorder(
+            farsight_recording::write::RecordingWriter::create(p, false)
+                .with_context(|| format!("--record {}", p.display()))?,
+        )),
+        None => None,
+    };
+    if let Some(rec) = &mut recorder {
+        rec.message(topics::goal().name(), Stamp::default(), &goal)?;
+    }
     let wall_start = Instant::now();
     for k in 1u64.. {
         let r = episode.robot;
@@ -295,37 +383,64 @@ pub fn run(a: RunArgs) -> Result<Summary> {
             a.yaw_noise_deg.to_radians(),
             &mut noise,
         );
-        poses.publish(&Pose {
+        // Height is the ground under the robot (the camera rides on it), so
+        // recorded trajectories project into past frames on hills too.
+        let (cx, cy) = episode.scenario.world.cell_of(r.x_m, r.y_m);
+        let ground_m = episode.scenario.world.ground_m(cx, cy) as f64;
+        let pose = Pose {
             stamp,
-            position_m: [px, py, 0.0],
+            position_m: [px, py, ground_m],
             yaw_rad: pyaw,
             linear_mps: r.linear_mps as f32,
             angular_radps: r.angular_radps as f32,
             ..Default::default()
-        })?;
+        };
+        poses.publish(&pose)?;
         let (lh, lc) = sensor.observe(&episode.scenario.world, r.x_m, r.y_m, stamp);
         locals.publish_copy(lh, &lc)?;
         for rig in &mut rigs {
             rig.publish(&episode.scenario.world, r.pose(), stamp)?;
         }
         goals.deliver_history()?;
-
-        let command = match a.clock {
-            ClockMode::Lockstep => {
-                let end = Instant::now() + Duration::from_secs_f64(a.command_timeout_s);
-                loop {
-                    match commands.latest()? {
-                        Some(c) if c.stamp.frame_seq >= k => break Some(c),
-                        _ if Instant::now() >= end => break None,
-                        _ => std::thread::sleep(Duration::from_micros(500)),
-                    }
+        if let Some(rec) = &mut recorder {
+            rec.message(topics::pose().name(), stamp, &pose)?;
+            rec.slice(topics::costmap("local").name(), stamp, &lh, &lc)?;
+            if k % a.record_every.max(1) == 1 % a.record_every.max(1) {
+                for rig in &rigs {
+                    rig.record(rec, stamp)?;
                 }
             }
-            ClockMode::Realtime => {
-                let due = wall_start + Duration::from_secs_f64(k as f64 * dt);
-                std::thread::sleep(due.saturating_duration_since(Instant::now()));
-                commands.latest()?
-            }
+        }
+
+        let command = match (&mut expert, a.clock) {
+            (Some(e), _) => Some(VelocityCommand {
+                stamp,
+                linear_mps: 0.0,
+                angular_radps: 0.0,
+                ..Default::default()
+            })
+            .map(|mut c| {
+                let (v, w) = e.command(&episode.scenario.world, r.pose(), dt);
+                (c.linear_mps, c.angular_radps) = (v as f32, w as f32);
+                c
+            }),
+            (None, clock) => match clock {
+                ClockMode::Lockstep => {
+                    let end = Instant::now() + Duration::from_secs_f64(a.command_timeout_s);
+                    loop {
+                        match commands.latest()? {
+                            Some(c) if c.stamp.frame_seq >= k => break Some(c),
+                            _ if Instant::now() >= end => break None,
+                            _ => std::thread::sleep(Duration::from_micros(500)),
+                        }
+                    }
+                }
+                ClockMode::Realtime => {
+                    let due = wall_start + Duration::from_secs_f64(k as f64 * dt);
+                    std::thread::sleep(due.saturating_duration_since(Instant::now()));
+                    commands.latest()?
+                }
+            },
         };
         let (v, w_) = match command {
             Some(VelocityCommand {
@@ -359,6 +474,9 @@ pub fn run(a: RunArgs) -> Result<Summary> {
         }
     }
     trace.flush()?;
+    if let Some(rec) = recorder {
+        rec.0.finish()?;
+    }
     let summary = episode.summary();
     let (mw, mh, cells) = episode.map_rgb();
     let k = map_scale(mw, mh);

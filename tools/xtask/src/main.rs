@@ -11,6 +11,11 @@
 //!   (`sim-povnav/` with its goldens, after an intended change of the
 //!   outputs; `orfd/`, the real frames as recorded over zenoh).
 //!
+//! - `train [--smoke] [--ship]`: the self-supervised training chain
+//!   (simulate -> record -> label -> train -> export -> evaluate) for LRN's
+//!   affordance model and FITAM's far-field ensemble; `--ship` copies the
+//!   models into `deploy/models/`.
+//!
 //! Dependency-free on purpose, so it starts in seconds on a fresh clone.
 
 use std::io::{BufRead, BufReader};
@@ -28,9 +33,10 @@ fn main() -> ExitCode {
         Some("bench") => bench(&args[1..]),
         Some("demo") => demo(&args[1..]),
         Some("fixtures") => fixtures(&args[1..]),
+        Some("train") => train(&args[1..]),
         _ => {
             eprintln!(
-                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, clippy, build and every test\n  bench NAME        transport | navigation | planning | nav | inference | recorder (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames\n  fixtures [sim|orfd]  regenerate tests/fixtures (the replay fixtures and their goldens)"
+                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, clippy, build and every test\n  bench NAME        transport | navigation | planning | nav | inference | recorder (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames\n  fixtures [sim|orfd|heldout]  regenerate tests/fixtures (replay fixtures and goldens; held-out frames)\n  train [--smoke] [--ship]  simulate, record, label, train, export, evaluate (LRN + FITAM models)"
             );
             return ExitCode::from(2);
         }
@@ -247,7 +253,38 @@ fn fixtures(which: &[String]) -> Result<()> {
         run(cargo().args(["build", "--release", "--workspace"]))?;
         orfd_fixture()?;
     }
+    if want("heldout") {
+        run(cargo().args(["build", "--release", "-p", "farsight-sim"]))?;
+        heldout_fixture()?;
+    }
     Ok(())
+}
+
+/// `tests/fixtures/heldout/`: 30 s of a random world no training run uses
+/// (seed 203), driven by the expert and recorded by the simulator with every
+/// 5th camera frame, for the shipped models' floor tests.
+fn heldout_fixture() -> Result<()> {
+    let dir = root().join("tests/fixtures/heldout");
+    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let out = root().join("target/fixture-heldout");
+    run(Command::new(root().join("target/release/farsight-sim"))
+        .args([
+            "run",
+            "--drive",
+            "expert",
+            "--scenario",
+            "random",
+            "--seed",
+            "203",
+        ])
+        .args(["--max-time-s", "30", "--record-every", "5", "--out"])
+        .arg(&out)
+        .arg("--record")
+        .arg(dir.join("recording.mcap"))
+        .env(
+            "FARSIGHT_IPC_PREFIX",
+            format!("heldout{}_", std::process::id()),
+        ))
 }
 
 fn sim_fixture() -> Result<()> {
@@ -404,4 +441,245 @@ fn demo(args: &[String]) -> Result<()> {
         .env("ORT_DYLIB_PATH", ort)
         .arg("demo")
         .args(args))
+}
+
+/// The worlds of the training chain: (scenario, seed, seconds driven). The
+/// held-out worlds are never trained or validated on; the benchmark's
+/// scenarios use seeds 1..=trials, so seeds here start at 50.
+struct TrainPlan {
+    train: Vec<(&'static str, u64, u32)>,
+    val: Vec<(&'static str, u64, u32)>,
+    heldout: Vec<(&'static str, u64, u32)>,
+    epochs: u32,
+    members: u32,
+}
+
+fn train_plan(smoke: bool) -> TrainPlan {
+    if smoke {
+        return TrainPlan {
+            train: vec![("random", 101, 90), ("road-forest", 50, 90)],
+            val: vec![("random", 151, 45)],
+            heldout: vec![("random", 201, 45)],
+            epochs: 4,
+            members: 3,
+        };
+    }
+    let mut train: Vec<(&'static str, u64, u32)> =
+        (101..=108).map(|s| ("random", s, 240)).collect();
+    for sc in ["road-forest", "bush-wall", "bridge", "obstacle-field-3"] {
+        train.push((sc, 50, 150));
+    }
+    TrainPlan {
+        train,
+        val: vec![("random", 151, 240), ("road-forest", 51, 150)],
+        heldout: vec![
+            ("random", 201, 240),
+            ("random", 202, 240),
+            ("road-forest", 60, 150),
+            ("bush-wall", 60, 150),
+        ],
+        // Sized to finish in about ten minutes on two cores: the reference
+        // trains 15 members to convergence on a GPU.
+        epochs: 8,
+        members: 5,
+    }
+}
+
+/// The trainer's virtual environment (`tools/train/requirements.txt`),
+/// made once in the cache.
+fn train_python() -> Result<PathBuf> {
+    let venv = cache_dir().join("train-venv");
+    let py = venv.join("bin/python");
+    let req = root().join("tools/train/requirements.txt");
+    let stamp = venv.join("requirements.txt");
+    let want = std::fs::read_to_string(&req).map_err(|e| format!("{}: {e}", req.display()))?;
+    if std::fs::read_to_string(&stamp).ok().as_deref() == Some(want.as_str()) && py.exists() {
+        return Ok(py);
+    }
+    eprintln!(
+        "xtask: making the trainer's Python environment in {}",
+        venv.display()
+    );
+    run(Command::new("python3").arg("-m").arg("venv").arg(&venv))?;
+    run(Command::new(&py)
+        .args(["-m", "pip", "install", "-q", "-r"])
+        .arg(&req))?;
+    std::fs::write(&stamp, want).map_err(|e| format!("{}: {e}", stamp.display()))?;
+    Ok(py)
+}
+
+fn train(args: &[String]) -> Result<()> {
+    let smoke = args.iter().any(|a| a == "--smoke");
+    let ship = args.iter().any(|a| a == "--ship");
+    if let Some(bad) = args.iter().find(|a| *a != "--smoke" && *a != "--ship") {
+        return Err(format!(
+            "train: unknown argument {bad:?} (want --smoke, --ship)"
+        ));
+    }
+    let plan = train_plan(smoke);
+    let t0 = std::time::Instant::now();
+    let step = |n: u32, what: &str| {
+        eprintln!(
+            "\n== [{n}/6] {what} ({:.0} s so far)",
+            t0.elapsed().as_secs_f64()
+        )
+    };
+    step(1, "build");
+    run(cargo().args(["build", "--release", "--workspace"]))?;
+    let py = train_python()?;
+    let work = root().join(if smoke {
+        "target/train-smoke"
+    } else {
+        "target/train"
+    });
+    let bin = root().join("target/release");
+    step(
+        2,
+        "simulate and record (the expert drives; the simulator records)",
+    );
+    let mut sets: Vec<(&str, Vec<PathBuf>)> = Vec::new();
+    for (name, worlds) in [
+        ("train", &plan.train),
+        ("val", &plan.val),
+        ("heldout", &plan.heldout),
+    ] {
+        let mut recs = Vec::new();
+        for (i, (sc, seed, secs)) in worlds.iter().enumerate() {
+            let out = work.join(format!("runs/{sc}-{seed}"));
+            let rec = out.join("recording.mcap");
+            eprintln!(
+                "  {name} [{}/{}] {sc} seed {seed}, {secs} s",
+                i + 1,
+                worlds.len()
+            );
+            let status = Command::new(bin.join("farsight-sim"))
+                .args(["run", "--drive", "expert", "--scenario", sc])
+                .args([
+                    "--seed",
+                    &seed.to_string(),
+                    "--max-time-s",
+                    &secs.to_string(),
+                ])
+                .arg("--out")
+                .arg(&out)
+                .arg("--record")
+                .arg(&rec)
+                .args(["--record-every", "5"])
+                .env(
+                    "FARSIGHT_IPC_PREFIX",
+                    format!("train{}_", std::process::id()),
+                )
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .output()
+                .map_err(|e| format!("farsight-sim: {e}"))?;
+            if !status.status.success() {
+                let err = String::from_utf8_lossy(&status.stderr);
+                let why = err.lines().find(|l| l.starts_with("Error")).unwrap_or("");
+                return Err(format!(
+                    "farsight-sim run --drive expert --scenario {sc} --seed {seed} failed ({}): {why}",
+                    status.status
+                ));
+            }
+            recs.push(rec);
+        }
+        sets.push((name, recs));
+    }
+    step(3, "label (farsight dataset)");
+    for (name, recs) in &sets {
+        let out = work.join(format!("data/{name}"));
+        let _ = std::fs::remove_dir_all(&out);
+        run(Command::new(bin.join("farsight"))
+            .arg("dataset")
+            .args(["--every", "1"])
+            .args(recs)
+            .arg("--out")
+            .arg(&out))?;
+    }
+    let data = |n: &str| work.join(format!("data/{n}"));
+    let models = work.join("models");
+    let trainer = root().join("tools/train/farsight_train.py");
+    step(4, "train and export LRN");
+    run(Command::new(&py)
+        .arg(&trainer)
+        .arg("lrn")
+        .arg("--train")
+        .arg(data("train"))
+        .arg("--val")
+        .arg(data("val"))
+        .arg("--out")
+        .arg(models.join("sim-lrn"))
+        .args(["--epochs", &plan.epochs.to_string(), "--seed", "1"]))?;
+    step(5, "train and export FITAM");
+    run(Command::new(&py)
+        .arg(&trainer)
+        .arg("fitam")
+        .arg("--train")
+        .arg(data("train"))
+        .arg("--val")
+        .arg(data("val"))
+        .arg("--out")
+        .arg(models.join("sim-fitam"))
+        .args(["--epochs", &plan.epochs.to_string(), "--seed", "1"])
+        .args(["--members", &plan.members.to_string()]))?;
+    step(6, "evaluate on the held-out worlds");
+    let report = work.join("report");
+    run(Command::new(&py)
+        .arg(&trainer)
+        .arg("evaluate")
+        .arg("--data")
+        .arg(data("heldout"))
+        .arg("--lrn")
+        .arg(models.join("sim-lrn"))
+        .arg("--fitam")
+        .arg(models.join("sim-fitam"))
+        .arg("--out")
+        .arg(&report))?;
+    let worlds = |w: &[(&str, u64, u32)]| {
+        w.iter()
+            .map(|(s, seed, t)| format!("{s} seed {seed} ({t} s)"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let provenance = format!(
+        "Made by `cargo xtask train{}` (seeds fixed: training seed 1).\n\n- train: {}\n- val: {}\n- held out: {}\n\nHeld-out metrics (`{}`):\n\n{}",
+        if smoke { " --smoke" } else { "" },
+        worlds(&plan.train),
+        worlds(&plan.val),
+        worlds(&plan.heldout),
+        "farsight_train.py evaluate",
+        std::fs::read_to_string(report.join("metrics.md")).unwrap_or_default()
+    );
+    for m in ["sim-lrn", "sim-fitam"] {
+        std::fs::write(models.join(m).join("TRAINED.md"), &provenance)
+            .map_err(|e| format!("{m}: {e}"))?;
+    }
+    if ship {
+        for m in ["sim-lrn", "sim-fitam"] {
+            let to = root().join("deploy/models").join(m);
+            std::fs::create_dir_all(&to).map_err(|e| format!("{}: {e}", to.display()))?;
+            for f in ["model.onnx", "model.toml", "TRAINED.md"] {
+                std::fs::copy(models.join(m).join(f), to.join(f))
+                    .map_err(|e| format!("shipping {m}/{f}: {e}"))?;
+            }
+            let png = if m == "sim-lrn" {
+                "lrn_roc_pr.png"
+            } else {
+                "fitam_roc.png"
+            };
+            std::fs::copy(report.join(png), to.join(png))
+                .map_err(|e| format!("shipping {m}/{png}: {e}"))?;
+        }
+        eprintln!(
+            "xtask: models shipped to {}",
+            root().join("deploy/models").display()
+        );
+    }
+    eprintln!(
+        "\nxtask: training chain done in {:.0} s; models in {}, report in {}",
+        t0.elapsed().as_secs_f64(),
+        models.display(),
+        report.display()
+    );
+    Ok(())
 }
