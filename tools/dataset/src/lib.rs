@@ -200,14 +200,9 @@ pub struct Manifest {
     pub summary: Summary,
 }
 
-/// The frame resized exactly as the inference stage resizes it for a model
-/// input of `width` x `height`, as packed RGB8.
-pub fn model_input_rgb(
-    header: &ImageHeader,
-    rgb: &[u8],
-    width: u32,
-    height: u32,
-) -> Result<Vec<u8>, String> {
+/// The inference stage's preprocessing for a `width` x `height` RGB input
+/// with no normalisation, so its output is the resized frame in 0..255.
+pub fn model_input_resizer(width: u32, height: u32) -> Preprocessor {
     let spec = InputSpec {
         name: "images".into(),
         layout: Default::default(),
@@ -219,7 +214,19 @@ pub fn model_input_rgb(
         mean: [0.0; 3],
         std: [1.0; 3],
     };
-    let mut p = Preprocessor::new(&spec, header.width, header.height);
+    Preprocessor::new(&spec, width, height)
+}
+
+/// The frame resized exactly as the inference stage resizes it for a model
+/// input of `width` x `height`, as packed RGB8 (`p` from
+/// [`model_input_resizer`], reused across frames).
+pub fn model_input_rgb(
+    p: &mut Preprocessor,
+    header: &ImageHeader,
+    rgb: &[u8],
+    width: u32,
+    height: u32,
+) -> Result<Vec<u8>, String> {
     let mut planes = vec![0f32; p.len()];
     p.run(header, rgb, &mut planes).map_err(|e| e.to_string())?;
     let plane = (width * height) as usize;
@@ -317,6 +324,7 @@ pub fn build(
         let slice_bins = slice_heading_bins(cam, opts.slices, geometry.heading_bins);
         let example_every = (index.frames / opts.every / opts.examples.max(1)).max(1);
         let mut done = 0usize;
+        let mut resizer = model_input_resizer(opts.image_width, opts.image_height);
         for_each_frame(path, &opts.camera, opts.every, |n, t_ns, header, rgb| {
             done += 1;
             if done.is_multiple_of(50) {
@@ -340,13 +348,18 @@ pub fn build(
             let id = frame_id;
             frame_id += 1;
             summary.frames += 1;
-            let image = model_input_rgb(header, rgb, opts.image_width, opts.image_height).map_err(
-                |why| DatasetError::Message {
-                    path: path.display().to_string(),
-                    topic: format!("camera/{}/image", opts.camera),
-                    why,
-                },
-            )?;
+            let image = model_input_rgb(
+                &mut resizer,
+                header,
+                rgb,
+                opts.image_width,
+                opts.image_height,
+            )
+            .map_err(|why| DatasetError::Message {
+                path: path.display().to_string(),
+                topic: format!("camera/{}/image", opts.camera),
+                why,
+            })?;
             let (w, h) = (opts.image_width as usize, opts.image_height as usize);
             let img_path = out.join(format!("images/{id:06}.png"));
             write_png(&img_path, w, h, 3, &image)?;
