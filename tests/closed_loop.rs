@@ -1,9 +1,11 @@
 //! The simulator in the loop, through the demo command itself: `farsight
-//! demo` starts costmap-fusion, D* Lite in subgoal-selection and the servo
-//! tracking the planned path, each its own process, with `farsight-sim run`
-//! as the robot on the lock-step clock. Near-field sensing alone (the "no
-//! far-field" baseline) gets out of LRN's bug trap, since D* Lite replans
-//! as the walls come into view.
+//! demo --method dstar-lite` starts costmap-fusion, D* Lite in
+//! subgoal-selection and the servo tracking the planned path, each its own
+//! process, with `farsight-sim run` as the robot on the lock-step clock.
+//! Near-field sensing alone (the "no far-field" baseline) gets out of LRN's
+//! bug trap, since D* Lite replans as the walls come into view. The default
+//! demo adds the inference stage running the shipped FITAM model and bin
+//! projection, so the fused map has a learned far field.
 //!
 //! Every stage of the demo runs on the stamps' clock (one output per input,
 //! time from the capture times), so two runs of a seed drive the same track
@@ -25,8 +27,9 @@ fn field<'a>(summary: &'a str, key: &str) -> &'a str {
 fn the_demo_escapes_the_bug_trap_with_dstar_lite_and_two_runs_drive_the_same_track() {
     assert!(bin("farsight-sim").exists(), "build the workspace first");
     let ns = Namespace::new("bugtrap");
-    let out = demo(&ns, "demo", &[]);
-    assert_same_track(&out, &demo(&ns, "again", &[]));
+    let dstar = ["--method", "dstar-lite"];
+    let out = demo(&ns, "demo", &dstar);
+    assert_same_track(&out, &demo(&ns, "again", &dstar));
     // The map shows the planner's decisions (orange plans), from the
     // recording of every topic the demo leaves beside it.
     let png = std::fs::read(out.join("bug-trap-map.png")).unwrap();
@@ -53,6 +56,32 @@ fn the_demo_escapes_the_bug_trap_with_dstar_lite_and_two_runs_drive_the_same_tra
         distance > 70.0,
         "it went round the trap, not through: {distance} m"
     );
+}
+
+#[test]
+fn the_default_demo_runs_the_shipped_fitam_model_in_the_graph_and_leaves_the_trap() {
+    let ns = Namespace::new("fitamdemo");
+    let out = demo(&ns, "default", &[]);
+    let summary = std::fs::read_to_string(out.join("summary.toml")).unwrap();
+    eprintln!("{summary}");
+    assert_eq!(field(&summary, "outcome"), "\"reached\"", "{summary}");
+    assert_eq!(field(&summary, "collisions"), "0", "{summary}");
+    assert_eq!(field(&summary, "late_commands"), "0", "{summary}");
+    // The inference stage ran the shipped model, and its far field reached
+    // the fused costmap through bin projection.
+    let inference = std::fs::read_to_string(out.join("inference.toml")).unwrap();
+    assert!(
+        inference.contains("deploy/models/sim-fitam/model.toml"),
+        "{inference}"
+    );
+    let info = farsight_recording::read::Recording::open(&out.join("recording.mcap"))
+        .unwrap()
+        .info()
+        .unwrap();
+    for topic in ["bins/polar", "costmap/fused", "nav/path/planned"] {
+        let t = info.topics.iter().find(|t| t.topic == topic);
+        assert!(t.is_some_and(|t| t.count > 100), "{topic}: {info}");
+    }
 }
 
 /// Runs `farsight demo` with `args` into a fresh folder; returns the folder.

@@ -4,8 +4,14 @@
 //! code; `tests/closed_loop.rs` drives it through real processes).
 //!
 //! Methods:
-//! - `goal_heuristic`: steer straight at the goal (LRN's baseline: its head
-//!   with uniform bins);
+//! - `lrn_learned`: LRN heading + local planning. The shipped affordance
+//!   model (`deploy/models/sim-lrn`) on the rendered front camera -> bin
+//!   projection's angular bins -> LRN's goal-conditioned head (Spot preset)
+//!   -> a subgoal 25 m along the heading, which D* Lite reaches over the
+//!   near-field map (the paper's robots ran their own local planners under
+//!   the heading; the graph's subgoal stage publishes the same subgoal);
+//! - `goal_heuristic`: LRN's baseline, the same with uniform bins: the head
+//!   picks the observed bin nearest the goal, and the same local planning;
 //! - `dstar_no_far_field`: near-field sensing -> fused map -> D* Lite -> carrot
 //!   (FITAM's baseline);
 //! - `fitam_gt`: the same plus far-field observations with ground-truth labels
@@ -52,7 +58,8 @@ use farsight_velocity_servoing::{
 };
 use std::time::Instant;
 
-pub const METHODS: [&str; 6] = [
+pub const METHODS: [&str; 7] = [
+    "lrn_learned",
     "goal_heuristic",
     "dstar_no_far_field",
     "fitam_gt",
@@ -76,46 +83,43 @@ struct Controller {
     labels: LabelRules,
     rig: Option<PovnavRig>,
     learned: Option<FarFieldRig>,
+    lrn: Option<LrnRig>,
     step: u64,
 }
 
-/// The shipped FITAM model's config, relative to the repository root.
-pub const FITAM_MODEL: &str = "deploy/models/sim-fitam/model.toml";
+use sim_tuning::{FITAM_MODEL, LRN_MODEL};
 
-/// FITAM's learned far field as the graph computes it: the simulator's front
-/// camera, the inference stage's backend, bin projection's slice mapping.
-struct FarFieldRig {
+fn shipped_model(rel: &str) -> Result<farsight_inference::model_config::ModelConfig> {
+    use anyhow::Context;
+    let path = sim_tuning::shipped_model(rel)?;
+    farsight_inference::model_config::ModelConfig::load(&path)
+        .with_context(|| path.display().to_string())
+}
+
+/// The simulator's front camera through a shipped model, as the camera and
+/// inference stages run it.
+struct LearnedCamera {
     renderer: Renderer,
     frame: Frame,
     backend: farsight_inference::Backend,
-    slice_bins: Option<Vec<Option<usize>>>,
-    cfg: farsight_bin_projection::fitam::FitamBinsConfig,
     camera: farsight_interfaces::camera::Camera,
 }
 
-impl FarFieldRig {
-    fn new() -> Result<Self> {
-        use anyhow::Context;
+impl LearnedCamera {
+    fn new(model: &str) -> Result<Self> {
         let (w, h) = sim_tuning::IMAGE_SIZE;
         let camera = front_camera(w, h);
-        let config =
-            farsight_inference::model_config::ModelConfig::load(std::path::Path::new(FITAM_MODEL))
-                .with_context(|| {
-                    format!("{FITAM_MODEL} (run the benchmark from the repository root)")
-                })?;
-        let model = farsight_inference::onnx::OnnxModel::load(&config)?;
+        let onnx = farsight_inference::onnx::OnnxModel::load(&shipped_model(model)?)?;
         Ok(Self {
             renderer: Renderer::new(&camera, 150.0),
             frame: Frame::default(),
-            backend: farsight_inference::Backend::Onnx(Box::new(model)),
-            slice_bins: None,
-            cfg: Default::default(),
+            backend: farsight_inference::Backend::Onnx(Box::new(onnx)),
             camera,
         })
     }
 
-    /// The far-field observation of the robot's current view.
-    fn observe(&mut self, e: &Episode) -> Result<Vec<farsight_interfaces::msg::PolarCell>> {
+    /// The model's outputs for the robot's current view.
+    fn perceive(&mut self, e: &Episode) -> Result<farsight_inference::Perception> {
         use farsight_interfaces::msg::{ImageHeader, PixelEncoding};
         self.renderer
             .render(&e.scenario.world, e.robot.pose(), &mut self.frame);
@@ -127,22 +131,127 @@ impl FarFieldRig {
             f.height as u32,
             PixelEncoding::RGB8,
         );
-        let p = self.backend.run(
+        Ok(self.backend.run(
             &header,
             &f.rgb,
             None,
             &mut farsight_inference::onnx::Timings::default(),
-        )?;
+        )?)
+    }
+}
+
+/// FITAM's learned far field as the graph computes it: the simulator's front
+/// camera, the inference stage's backend, bin projection's slice mapping.
+struct FarFieldRig {
+    eye: LearnedCamera,
+    slice_bins: Option<Vec<Option<usize>>>,
+    cfg: farsight_bin_projection::fitam::FitamBinsConfig,
+}
+
+impl FarFieldRig {
+    fn new() -> Result<Self> {
+        Ok(Self {
+            eye: LearnedCamera::new(FITAM_MODEL)?,
+            slice_bins: None,
+            cfg: Default::default(),
+        })
+    }
+
+    /// The far-field observation of the robot's current view.
+    fn observe(&mut self, e: &Episode) -> Result<Vec<farsight_interfaces::msg::PolarCell>> {
+        let p = self.eye.perceive(e)?;
         let (shape, logits) = p
             .far_field
             .ok_or_else(|| anyhow::anyhow!("{FITAM_MODEL}: no far_field_ensemble output"))?;
         let heading_bins = self.cfg.heading_bins;
+        let camera = &self.eye.camera;
         let bins = self.slice_bins.get_or_insert_with(|| {
-            farsight_bin_projection::fitam::slice_heading_bins(&self.camera, shape[0], heading_bins)
+            farsight_bin_projection::fitam::slice_heading_bins(camera, shape[0], heading_bins)
         });
         Ok(farsight_bin_projection::fitam::polar_observation(
             &logits, shape, bins, &self.cfg,
         )?)
+    }
+}
+
+/// LRN as the graph runs it: affordance heatmap (or, for the goal
+/// heuristic, nothing) -> bin projection's angular bins -> the subgoal
+/// stage's head, with the stages' default configs (Spot preset).
+struct LrnRig {
+    /// `None`: the goal heuristic, which needs only which bins the camera sees.
+    eye: Option<LearnedCamera>,
+    camera_bins: Option<farsight_bin_projection::CameraBins>,
+    bins: farsight_bin_projection::LrnBins,
+    bins_cfg: farsight_bin_projection::LrnBinsConfig,
+    head: farsight_subgoal_selection::lrn_head::LrnHead,
+    head_cfg: farsight_subgoal_selection::lrn_head::LrnHeadConfig,
+    centers_rad: Vec<f64>,
+    subgoal_distance_m: f64,
+}
+
+impl LrnRig {
+    fn new(learned: bool) -> Result<Self> {
+        use farsight_bin_projection::{BinGeometry, LrnBins};
+        let bins_cfg = sim_tuning::lrn_bins();
+        let geometry = BinGeometry::from_width_deg(bins_cfg.bin_width_deg);
+        let stage = SubgoalStageConfig::default();
+        let mut head_cfg = stage.lrn;
+        head_cfg.goal_heuristic = !learned;
+        Ok(Self {
+            eye: learned.then(|| LearnedCamera::new(LRN_MODEL)).transpose()?,
+            camera_bins: None,
+            bins: LrnBins::new(geometry, bins_cfg),
+            bins_cfg,
+            head: Default::default(),
+            head_cfg,
+            centers_rad: (0..geometry.count)
+                .map(|i| geometry.center_rad(i))
+                .collect(),
+            subgoal_distance_m: stage.subgoal_distance_m,
+        })
+    }
+
+    /// The subgoal in the robot frame, as the subgoal stage publishes it;
+    /// `None` when no observed bin is affordable.
+    fn subgoal(
+        &mut self,
+        e: &Episode,
+        goal_bearing_rad: f64,
+        goal_distance_m: f64,
+    ) -> Result<Option<[f64; 2]>> {
+        use farsight_bin_projection::CameraBins;
+        let geometry = self.bins.geometry;
+        let projection = match &mut self.eye {
+            Some(eye) => {
+                let p = eye.perceive(e)?;
+                let heatmap = p
+                    .heatmap
+                    .ok_or_else(|| anyhow::anyhow!("{LRN_MODEL}: no affordance_heatmap output"))?;
+                let camera = &eye.camera;
+                let map = self
+                    .camera_bins
+                    .get_or_insert_with(|| CameraBins::new(camera, p.width, p.height, &geometry));
+                map.project(&heatmap, self.bins_cfg.pixel_threshold())
+            }
+            None => {
+                let (w, h) = sim_tuning::IMAGE_SIZE;
+                let map = self.camera_bins.get_or_insert_with(|| {
+                    CameraBins::new(&front_camera(w, h), w as usize, h as usize, &geometry)
+                });
+                map.project(&[], 0.0)
+            }
+        };
+        let b = self.bins.update(&[projection]);
+        let heading = self.head.select(
+            &self.head_cfg,
+            &b.scores,
+            &b.observed,
+            &self.centers_rad,
+            goal_bearing_rad,
+            goal_distance_m,
+        );
+        let d = self.subgoal_distance_m.min(goal_distance_m);
+        Ok(heading.map(|h| [d * h.cos(), d * h.sin()]))
     }
 }
 
@@ -264,6 +373,9 @@ impl Controller {
         let learned = (method == "fitam_learned")
             .then(FarFieldRig::new)
             .transpose()?;
+        let lrn = matches!(method, "lrn_learned" | "goal_heuristic")
+            .then(|| LrnRig::new(method == "lrn_learned"))
+            .transpose()?;
         Ok(Self {
             method,
             servo: ServoConfig {
@@ -275,7 +387,8 @@ impl Controller {
             fusion: FusionMap::new(201, 201, 1.0, FarFieldConfig::default()),
             planner: None,
             planner_cfg: WorldPlannerConfig {
-                margin_m: 100.0,
+                // LRN plans locally, to a subgoal that moves with the robot.
+                margin_m: if lrn.is_some() { 30.0 } else { 100.0 },
                 ..Default::default()
             },
             sensor: NearFieldSensor::default(),
@@ -283,6 +396,7 @@ impl Controller {
             labels: LabelRules::default(),
             rig,
             learned,
+            lrn,
             step: 0,
         })
     }
@@ -300,43 +414,62 @@ impl Controller {
             // The graph's velocity command carries f32.
             return Ok((v as f32 as f64, w as f32 as f64));
         }
-        let goal_robot = pose.to_robot_frame(e.scenario.goal);
-        let goal_bearing = goal_robot[1].atan2(goal_robot[0]);
-        let target = match self.method {
-            "goal_heuristic" => heading_command(goal_bearing, &self.servo),
-            _ => {
-                let world = &e.scenario.world;
-                self.fusion.recenter(r.x_m, r.y_m);
-                let (lh, lc) = self.sensor.observe(world, r.x_m, r.y_m, Stamp::default());
-                self.fusion.apply_local_costmap(&lh, &lc);
-                let far = self.method == "fitam_gt" || self.learned.is_some();
-                if far && self.step % 10 == 1 {
-                    let bins = match &mut self.learned {
-                        Some(l) => l.observe(e)?,
-                        None => ground_truth_bins(world, &self.geometry, r.pose(), &self.labels),
-                    };
-                    self.fusion
-                        .observe_far_field(&self.geometry, &bins, r.x_m, r.y_m, r.yaw_rad);
-                    self.fusion.add_process_noise();
-                }
-                let cfg = &self.planner_cfg;
-                let planner = self
-                    .planner
-                    .get_or_insert_with(|| WorldPlanner::new([r.x_m, r.y_m], e.scenario.goal, cfg));
-                let (h, cells) = self
-                    .fusion
-                    .export(Stamp::default(), CostmapLayer::FUSED, far);
-                planner.apply_costmap(&h, &cells);
-                match planner.plan([r.x_m, r.y_m]) {
-                    Ok((path, _)) => {
-                        let robot_path: Vec<[f64; 2]> =
-                            path.iter().map(|&q| pose.to_robot_frame(q)).collect();
-                        carrot_point(&robot_path, self.servo.lookahead_m)
-                            .map_or((0.0, 0.0), |c| carrot_command(c, &self.servo))
-                    }
-                    Err(_) => (0.0, 0.0),
+        let world = &e.scenario.world;
+        self.fusion.recenter(r.x_m, r.y_m);
+        let (lh, lc) = self.sensor.observe(world, r.x_m, r.y_m, Stamp::default());
+        self.fusion.apply_local_costmap(&lh, &lc);
+        let far = self.method == "fitam_gt" || self.learned.is_some();
+        if far && self.step % 10 == 1 {
+            let bins = match &mut self.learned {
+                Some(l) => l.observe(e)?,
+                None => ground_truth_bins(world, &self.geometry, r.pose(), &self.labels),
+            };
+            self.fusion
+                .observe_far_field(&self.geometry, &bins, r.x_m, r.y_m, r.yaw_rad);
+            self.fusion.add_process_noise();
+        }
+        let goal_m = match &mut self.lrn {
+            Some(lrn) => {
+                let g = pose.to_robot_frame(e.scenario.goal);
+                match lrn.subgoal(e, g[1].atan2(g[0]), g[0].hypot(g[1]))? {
+                    Some(s) => pose.to_world_frame(s),
+                    None => return Ok(self.limiter.stop()),
                 }
             }
+            None => e.scenario.goal,
+        };
+        // A planner is built for its goal; LRN's subgoal moves with the
+        // robot, so its planner is built again once the subgoal has moved.
+        if self
+            .planner
+            .as_ref()
+            .is_some_and(|p| (p.goal_m()[0] - goal_m[0]).hypot(p.goal_m()[1] - goal_m[1]) > 2.0)
+        {
+            self.planner = None;
+        }
+        let cfg = &self.planner_cfg;
+        let planner = self
+            .planner
+            .get_or_insert_with(|| WorldPlanner::new([r.x_m, r.y_m], goal_m, cfg));
+        let (h, cells) = self
+            .fusion
+            .export(Stamp::default(), CostmapLayer::FUSED, far);
+        planner.apply_costmap(&h, &cells);
+        let target = match planner.plan([r.x_m, r.y_m]) {
+            Ok((path, _)) => {
+                let robot_path: Vec<[f64; 2]> =
+                    path.iter().map(|&q| pose.to_robot_frame(q)).collect();
+                carrot_point(&robot_path, self.servo.lookahead_m)
+                    .map_or((0.0, 0.0), |c| carrot_command(c, &self.servo))
+            }
+            // LRN's subgoal can land on an obstacle (a tree 25 m out in a
+            // forest): head for it as the graph's servo does and let the
+            // next subgoal move off it.
+            Err(_) if self.lrn.is_some() => {
+                let s = pose.to_robot_frame(goal_m);
+                heading_command(s[1].atan2(s[0]), &self.servo)
+            }
+            Err(_) => (0.0, 0.0),
         };
         Ok(self.limiter.limit(target, DT_S, &self.servo))
     }
@@ -503,13 +636,40 @@ mod tests {
             fitam.traversal_cost_s < 0.9 * base.traversal_cost_s,
             "{fitam:?} vs {base:?}"
         );
-        let (straight, _) = trial("goal_heuristic", "bridge", 1, 60.0, None).unwrap();
-        assert_eq!(
-            straight.outcome,
-            Outcome::TimedOut,
-            "the baseline stops at the river"
-        );
-        assert!(straight.collisions > 0);
+    }
+
+    #[test]
+    fn lrn_heads_for_an_observed_bin_and_its_baseline_for_the_one_nearest_the_goal() {
+        let s = scenario("bug-trap", 1).unwrap();
+        let e = Episode::new(s, EpisodeConfig::default());
+        // The goal is 60 m dead ahead: the goal heuristic takes the bin
+        // whose centre is nearest 0 (5 degree bins: +-2.5 degrees), 25 m out.
+        let mut base = LrnRig::new(false).unwrap();
+        let sub = base.subgoal(&e, 0.0, 60.0).unwrap().unwrap();
+        assert!((sub[0].hypot(sub[1]) - 25.0).abs() < 1e-9, "{sub:?}");
+        assert!(sub[1].atan2(sub[0]).to_degrees().abs() < 2.6, "{sub:?}");
+        // Goal behind: the nearest bin the front camera sees, at its edge.
+        let sub = base.subgoal(&e, 3.0, 60.0).unwrap().unwrap();
+        let h = sub[1].atan2(sub[0]).to_degrees();
+        assert!(h > 50.0 && h < 62.0, "{h}");
+        // The shipped model's heatmap through bin projection: a heading
+        // within the camera's 120 degrees, 25 m out (12 m from the goal,
+        // the goal itself).
+        let mut lrn = LrnRig::new(true).unwrap();
+        let sub = lrn.subgoal(&e, 0.0, 60.0).unwrap().unwrap();
+        assert!((sub[0].hypot(sub[1]) - 25.0).abs() < 1e-9, "{sub:?}");
+        assert!(sub[1].atan2(sub[0]).to_degrees().abs() < 61.0, "{sub:?}");
+        let sub = lrn.subgoal(&e, 0.5, 10.0).unwrap().unwrap();
+        assert!((sub[0] - 10.0 * 0.5f64.cos()).abs() < 1e-9, "{sub:?}");
+    }
+
+    #[test]
+    fn goal_heuristic_with_local_planning_finds_the_bridge() {
+        // LRN's baseline heads at the goal; the near-field map shows the
+        // river and the local planner follows the bank to the bridge.
+        let (s, _) = trial("goal_heuristic", "bridge", 1, 200.0, None).unwrap();
+        assert_eq!((s.outcome, s.collisions), (Outcome::Reached, 0), "{s:?}");
+        assert!(s.distance_m > 70.0, "round by the bridge: {s:?}");
     }
 
     #[test]

@@ -32,7 +32,7 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// How the graph navigates in simulation.
-    #[arg(long, value_enum, default_value = "dstar-lite")]
+    #[arg(long, value_enum, default_value = "fitam")]
     method: crate::demo_sim::Method,
     /// Named mode: the simulator's class image stands in for the inference stage.
     #[arg(long)]

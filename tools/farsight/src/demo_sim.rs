@@ -6,13 +6,21 @@
 //! of every topic (`recording.mcap`) and `summary.toml`.
 //!
 //! Methods:
-//! - `--method dstar-lite` (default): near-field sensing -> costmap-fusion -> D* Lite
-//!   -> carrot tracking (FITAM's "no far-field" baseline);
+//! - `--method fitam` (default): the shipped FITAM far-field model
+//!   (`deploy/models/sim-fitam`) -> bin-projection's polar bins ->
+//!   costmap-fusion (near field + Kalman-fused far field) -> D* Lite ->
+//!   carrot tracking;
+//! - `--method dstar-lite`: the same without the far field (FITAM's "no
+//!   far-field" baseline);
+//! - `--method lrn`: the shipped LRN affordance model
+//!   (`deploy/models/sim-lrn`) in the inference stage on the rendered RGB ->
+//!   bin-projection's angular bins -> LRN's goal-conditioned head in the
+//!   subgoal stage -> the servo's heading law. Not the default: that model's
+//!   heatmap does not tell the bug trap's wall from open ground (README,
+//!   "Navigation benchmark");
 //! - `--method povnav`: the inference stage's HSV backend on the rendered RGB ->
 //!   POVNav -> the POVNav servo law; `--oracle` swaps the inference stage
 //!   for the simulator's class image.
-//!
-//! LRN needs an affordance model, which the training issue produces.
 
 use crate::demo::{start_ready, Stage};
 use crate::sim_tuning;
@@ -23,8 +31,10 @@ use std::process::{Command, Stdio};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Method {
+    Fitam,
     DstarLite,
     Povnav,
+    Lrn,
 }
 
 pub struct SimDemo {
@@ -45,13 +55,16 @@ hue_deg = [55.0, 115.0]\nsaturation = [0.35, 0.75]\nvalue = [0.35, 0.85]\n\
 hue_deg = [25.0, 45.0]\nsaturation = [0.1, 0.45]\nvalue = [0.4, 0.8]\n";
 
 /// The topics the demo records by name (subscribed before anything runs).
-const RECORDED: [&str; 13] = [
+const RECORDED: [&str; 16] = [
     "camera/front/image",
     "camera/front/info",
     "state/pose",
     "nav/goal",
     "costmap/local",
     "perception/front/navigability",
+    "perception/front/heatmap",
+    "bins/angular",
+    "bins/polar",
     "nav/subgoal",
     "nav/path/visual",
     "nav/path/visual_robot",
@@ -158,6 +171,23 @@ fn draw_decisions(out: &Path, scenario: &str, seed: u64) -> Result<()> {
     Ok(())
 }
 
+/// Fusion, D* Lite and the carrot tracker: FITAM's planning half.
+fn dstar_stages(
+    fusion: &farsight_costmap_fusion::stage::FusionStageConfig,
+) -> Result<Vec<(&'static str, String)>> {
+    Ok(vec![
+        ("costmap-fusion", sim_tuning::to_toml(fusion)?),
+        (
+            "subgoal-selection",
+            sim_tuning::to_toml(&sim_tuning::dstar_subgoal_selection())?,
+        ),
+        (
+            "velocity-servoing",
+            sim_tuning::to_toml(&sim_tuning::dstar_servo())?,
+        ),
+    ])
+}
+
 fn write(out: &Path, name: &str, text: &str) -> Result<PathBuf> {
     let p = out.join(name);
     std::fs::write(&p, text).with_context(|| format!("writing {}", p.display()))?;
@@ -165,25 +195,51 @@ fn write(out: &Path, name: &str, text: &str) -> Result<PathBuf> {
 }
 
 pub fn run(d: SimDemo) -> Result<()> {
+    if d.oracle && d.method != Method::Povnav {
+        bail!("--oracle is POVNav's named mode (the class image as navigability); use it with --method povnav");
+    }
     std::fs::create_dir_all(&d.out)?;
     let out = std::fs::canonicalize(&d.out)?;
     let prefix = format!("simdemo{}_", std::process::id());
     // Each stage's config file, in start order.
+    let model = |rel: &str| -> Result<String> {
+        let path = sim_tuning::shipped_model(rel)?;
+        Ok(format!(
+            "camera = \"front\"\nbackend = \"onnx\"\nmodel_config = {:?}\n",
+            path.canonicalize()?.display().to_string()
+        ))
+    };
     let configs: Vec<(&'static str, String)> = match d.method {
-        Method::DstarLite => vec![
+        Method::Lrn => vec![
+            ("inference", model(sim_tuning::LRN_MODEL)?),
             (
-                "costmap-fusion",
-                sim_tuning::to_toml(&sim_tuning::dstar_costmap_fusion())?,
+                "bin-projection",
+                format!(
+                    "method = \"lrn\"\ncameras = [\"front\"]\n\n[bins]\n{}",
+                    sim_tuning::to_toml(&sim_tuning::lrn_bins())?
+                ),
             ),
             (
                 "subgoal-selection",
-                sim_tuning::to_toml(&sim_tuning::dstar_subgoal_selection())?,
+                sim_tuning::to_toml(&sim_tuning::lrn_subgoal_selection())?,
             ),
             (
                 "velocity-servoing",
-                sim_tuning::to_toml(&sim_tuning::dstar_servo())?,
+                sim_tuning::to_toml(&sim_tuning::povnav_servo())?,
             ),
         ],
+        Method::Fitam => {
+            let mut c = vec![
+                ("inference", model(sim_tuning::FITAM_MODEL)?),
+                (
+                    "bin-projection",
+                    "method = \"fitam\"\ncameras = [\"front\"]\n".into(),
+                ),
+            ];
+            c.extend(dstar_stages(&sim_tuning::fitam_costmap_fusion())?);
+            c
+        }
+        Method::DstarLite => dstar_stages(&sim_tuning::dstar_costmap_fusion())?,
         Method::Povnav => {
             let mut c = Vec::new();
             if !d.oracle {

@@ -75,6 +75,54 @@ pub fn povnav_servo() -> ServoStageConfig {
     c
 }
 
+/// The shipped models' configs (`cargo xtask train --ship`), relative to
+/// the repository root.
+pub const FITAM_MODEL: &str = "deploy/models/sim-fitam/model.toml";
+pub const LRN_MODEL: &str = "deploy/models/sim-lrn/model.toml";
+
+/// Where a shipped model is, looked for from the current folder up: the demo
+/// and benchmark run from the repository root, tests from a crate's folder.
+pub fn shipped_model(rel: &str) -> anyhow::Result<std::path::PathBuf> {
+    let cwd = std::env::current_dir()?;
+    let found = cwd.ancestors().map(|a| a.join(rel)).find(|p| p.exists());
+    found.ok_or_else(|| {
+        anyhow::anyhow!(
+            "{rel} is in neither {} nor a folder above it: run from the farsight \
+             repository (`cargo xtask train --ship` writes the models)",
+            cwd.display()
+        )
+    })
+}
+
+/// LRN's bins for the shipped model: its heatmap peaks near 0.5-0.65 (a
+/// sigmoid trained on rare, blurred hotspots), so the paper's h_thresh 0.7
+/// applies to bin sums relative to the best bin, not to pixels, where it
+/// would leave no bin at all.
+pub fn lrn_bins() -> farsight_bin_projection::LrnBinsConfig {
+    farsight_bin_projection::LrnBinsConfig {
+        threshold_on: farsight_bin_projection::ThresholdOn::Bins,
+        ..Default::default()
+    }
+}
+
+/// LRN as the demo runs it: the shipped affordance model's bins, the
+/// subgoal stage's head (Spot preset) on the stamps' clock.
+pub fn lrn_subgoal_selection() -> SubgoalStageConfig {
+    SubgoalStageConfig {
+        method: "lrn".into(),
+        ..Default::default()
+    }
+}
+
+/// FITAM's fusion: the default 201 m window, so the far field's 100 m
+/// predictions fit, on the stamps' clock.
+pub fn fitam_costmap_fusion() -> FusionStageConfig {
+    FusionStageConfig {
+        clock: ClockSource::Stamps,
+        ..Default::default()
+    }
+}
+
 /// A config as the TOML file a stage reads.
 pub fn to_toml<T: serde::Serialize>(config: &T) -> anyhow::Result<String> {
     Ok(toml::to_string(config)?)
