@@ -263,11 +263,13 @@ impl StageArgs {
     }
 }
 
-/// Sets up logging once: `RUST_LOG` filter (default `info`), text or JSON.
+/// Sets up logging once: `RUST_LOG` filter (default `info`, with zenoh and
+/// ONNX Runtime at `warn`: ORT logs every arena allocation at info), text
+/// or JSON.
 pub fn init_tracing(format: LogFormat) {
     use tracing_subscriber::EnvFilter;
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-        EnvFilter::new("info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn")
+        EnvFilter::new("info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn,ort=warn")
     });
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
