@@ -1,11 +1,18 @@
 //! LRN's self-supervised affordance labels (LRN section III-A). From a frame
 //! and the path the robot then drove, the end of the stretch of that path
-//! the frame can see (before it leaves the image, passes out of range or
-//! goes behind an obstacle or a crest) is an affordable "hotspot" (1, a
-//! Gaussian blob); the path leading to it and the image column above it are
-//! not (0); every other pixel is unlabelled. With the simulator's poses and
-//! camera model the projection is exact; on a real robot it is as good as
-//! the recorded poses.
+//! the frame can see (before it passes out of range or goes behind an
+//! obstacle or a crest) is an affordable "hotspot" (1, a Gaussian blob); the
+//! path leading to it and the image column above it are not (0); every other
+//! pixel is unlabelled. With the simulator's poses and camera model the
+//! projection is exact; on a real robot it is as good as the recorded poses.
+//!
+//! A path that leaves the image through its side gives the frame no label.
+//! The paper's hotspot is a frontier, where the tracked path disappears
+//! from view; the last point before a side exit is only where the lens
+//! ends. Labelled, those points sit on the image's edge columns (a narrow
+//! pinhole sees many turns leave it), and a fully convolutional model
+//! learns that the image's edges are affordable, which turns LRN's head to
+//! the edge bins on every frame.
 
 use crate::run::{RecordedPose, SeenMap};
 use farsight_interfaces::camera::Camera;
@@ -89,6 +96,23 @@ pub fn sight(camera: &Camera, pose: &RecordedPose, p: [f64; 3]) -> Option<Sighti
     })
 }
 
+/// What a frame sees of the path driven after it (see [`visible_path`]);
+/// derefs to the sightings, nearest first.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct VisiblePath {
+    pub sightings: Vec<Sighting>,
+    /// The path went on out of the image (through a side, or behind the
+    /// camera) rather than out of range or out of sight.
+    pub left_image: bool,
+}
+
+impl std::ops::Deref for VisiblePath {
+    type Target = [Sighting];
+    fn deref(&self) -> &[Sighting] {
+        &self.sightings
+    }
+}
+
 /// The stretch of `future` (the poses after the frame, in order) that the
 /// frame sees: from the first path point inside the image to the last one
 /// before the path leaves the image or range, or is hidden by a lethal cell
@@ -99,7 +123,7 @@ pub fn visible_path(
     future: &[RecordedPose],
     seen: &SeenMap,
     cfg: &LrnLabelConfig,
-) -> Vec<Sighting> {
+) -> VisiblePath {
     let (w, h) = (camera.model.width as f64, camera.model.height as f64);
     let (s, c) = pose.yaw_rad.sin_cos();
     let m = camera.mount.translation_m;
@@ -130,17 +154,25 @@ pub fn visible_path(
                     break;
                 }
             }
-            (None, false) => break,
+            (None, false) => {
+                return VisiblePath {
+                    sightings: out,
+                    left_image: inside.is_none(),
+                }
+            }
         }
     }
-    out
+    VisiblePath {
+        sightings: out,
+        left_image: false,
+    }
 }
 
 /// Draws the label of a visible path (see the module comment); `None` when
-/// the path shows less than `min_visible_m`.
-pub fn lrn_label(camera: &Camera, path: &[Sighting], cfg: &LrnLabelConfig) -> Option<LrnLabel> {
+/// the path shows less than `min_visible_m` or leaves the image.
+pub fn lrn_label(camera: &Camera, path: &VisiblePath, cfg: &LrnLabelConfig) -> Option<LrnLabel> {
     let (first, last) = (path.first()?, path.last()?);
-    if last.range_m - first.range_m < cfg.min_visible_m {
+    if last.range_m - first.range_m < cfg.min_visible_m || path.left_image {
         return None;
     }
     let (w, h) = (camera.model.width as usize, camera.model.height as usize);
@@ -295,6 +327,7 @@ mod tests {
         assert!((path[0].range_m - 1.4).abs() < 1e-9, "{:?}", path[0]);
         let last = path.last().unwrap();
         assert!((last.range_m - 20.0).abs() < 1e-6, "{last:?}");
+        assert!(!path.left_image);
         let label = lrn_label(&camera(), &path, &cfg).unwrap();
         let at = |u: usize, v: usize| (label.labelled[v * 64 + u], label.value[v * 64 + u]);
         // Hotspot at (31.5, 23.5 + 32/20 = 25.1).
@@ -349,7 +382,7 @@ mod tests {
     }
 
     #[test]
-    fn a_path_that_turns_away_ends_where_it_leaves_the_image_and_a_short_one_is_no_label() {
+    fn a_path_that_turns_out_of_the_image_or_a_short_one_is_no_label() {
         let cfg = LrnLabelConfig::default();
         // 5 m ahead, then hard left: the image's left edge is at 31.5/32 ~
         // 44.5 deg.
@@ -368,6 +401,11 @@ mod tests {
             "{last:?}"
         );
         assert!(last.px[0] >= 0.0 && last.px[0] < 1.5, "{last:?}");
+        assert!(path.left_image && path.len() > 30, "{path:?}");
+        assert!(
+            lrn_label(&camera(), &path, &cfg).is_none(),
+            "the edge of the lens is no frontier"
+        );
         // Standing still: no label.
         let still = vec![pose(0.0, 0.0, 0.0); 50];
         assert!(visible_path(
