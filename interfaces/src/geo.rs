@@ -236,6 +236,11 @@ impl GoalTracker {
         self.goal = Some(goal);
     }
 
+    /// The latest pose.
+    pub fn pose(&self) -> Option<&crate::msg::Pose> {
+        self.pose.as_ref()
+    }
+
     /// Bearing and distance of the goal from the robot (see [`goal_in_robot_frame`]).
     pub fn goal_in_robot_frame(&self) -> Option<(f64, f64)> {
         goal_in_robot_frame(

@@ -93,12 +93,32 @@ fn gaussian(x: f64, mu: f64, sigma: f64) -> f64 {
 }
 
 /// The head's state: the previous choice.
+///
+/// Bins and choices are bearings in the robot frame, but the previous
+/// choice is a direction in the world: when the robot turns toward a
+/// heading, that heading must stay where it was, not turn with the robot
+/// (which would make the head chase its own tail). [`LrnHead::set_robot_yaw`]
+/// keeps it there; a head never told the yaw keeps it in the robot frame.
 #[derive(Debug, Clone, Default)]
 pub struct LrnHead {
     previous_rad: Option<f64>,
+    yaw_rad: Option<f64>,
 }
 
 impl LrnHead {
+    /// The robot's yaw (any fixed frame) at the frame about to be selected
+    /// on: the previous choice turns the other way by as much as the robot
+    /// turned since the last call.
+    pub fn set_robot_yaw(&mut self, yaw_rad: f64) {
+        if !yaw_rad.is_finite() {
+            return;
+        }
+        if let (Some(prev), Some(last)) = (self.previous_rad.as_mut(), self.yaw_rad) {
+            *prev = wrap(*prev - (yaw_rad - last));
+        }
+        self.yaw_rad = Some(yaw_rad);
+    }
+
     /// The heading to take. `centers_rad[i]` is bin i's bearing; unobserved
     /// bins cannot be chosen. `None` when no observed bin has any score.
     pub fn select(
@@ -260,6 +280,17 @@ mod tests {
             .select(&cfg, &swapped, &[true; 8], &c, 0.0, 100.0)
             .unwrap();
         assert_eq!(second, prefer, "a 2% difference does not flip the choice");
+        // The robot turns 45 degrees toward its choice: in the robot frame
+        // the remembered heading is now 45 degrees nearer straight ahead.
+        let mut turning = head.clone();
+        turning.set_robot_yaw(1.0);
+        let side = prefer.signum();
+        turning.set_robot_yaw(1.0 + side * PI / 4.0);
+        assert!(
+            (turning.previous_rad.unwrap() - (prefer - side * PI / 4.0)).abs() < 1e-12,
+            "{:?}",
+            turning.previous_rad
+        );
         assert_eq!(
             head.select(&cfg, &[0.0; 8], &[true; 8], &c, 0.0, 100.0),
             None

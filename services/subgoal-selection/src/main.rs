@@ -231,6 +231,9 @@ fn run() -> Result<()> {
             let observed: Vec<bool> = (0..k)
                 .map(|i| b.observed.as_slice().get(i).is_some_and(|&o| o == 1))
                 .collect();
+            if let Some(p) = tracker.pose() {
+                head.set_robot_yaw(p.yaw_rad);
+            }
             let Some(heading) =
                 head.select(&lrn_cfg, &scores, &observed, &centers, bearing, distance)
             else {

@@ -242,6 +242,7 @@ impl LrnRig {
             }
         };
         let b = self.bins.update(&[projection]);
+        self.head.set_robot_yaw(e.robot.yaw_rad);
         let heading = self.head.select(
             &self.head_cfg,
             &b.scores,
