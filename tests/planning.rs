@@ -71,12 +71,7 @@ fn ground_truth_bins(world: &[u8], g: &PolarGeometry, x: f64, y: f64, yaw: f64) 
                     class_id: c as u32,
                     probability: 0.9,
                 },
-                None => PolarCell {
-                    cost_s_per_m: f32::NAN,
-                    variance: f32::INFINITY,
-                    class_id: u32::MAX,
-                    probability: 0.0,
-                },
+                None => PolarCell::NO_MEASUREMENT,
             }
         })
         .collect()

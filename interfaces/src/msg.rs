@@ -310,6 +310,17 @@ pub struct PolarCell {
     pub probability: f32,
 }
 
+impl PolarCell {
+    /// A bin that carries no measurement: no cost, infinite variance, no
+    /// class. The Kalman update skips it.
+    pub const NO_MEASUREMENT: PolarCell = PolarCell {
+        cost_s_per_m: f32::NAN,
+        variance: f32::INFINITY,
+        class_id: u32::MAX,
+        probability: 0.0,
+    };
+}
+
 /// Maximum radial bin edges of a polar bin message.
 pub const MAX_RANGE_EDGES: usize = 16;
 

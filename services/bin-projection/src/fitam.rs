@@ -179,14 +179,6 @@ pub fn ensemble_observation(
     Ok(out)
 }
 
-/// A polar cell that carries no measurement.
-pub const NO_MEASUREMENT: PolarCell = PolarCell {
-    cost_s_per_m: f32::NAN,
-    variance: f32::INFINITY,
-    class_id: u32::MAX,
-    probability: 0.0,
-};
-
 /// The heading bin each of `slices` vertical image slices looks into: the
 /// bearing of the slice's centre column on the principal row, through the
 /// camera model and mount. Bins start at -pi, as the LRN bins. A model
@@ -237,7 +229,7 @@ pub fn polar_observation(
             classes,
         });
     }
-    let mut out = vec![NO_MEASUREMENT; cfg.heading_bins * radial];
+    let mut out = vec![PolarCell::NO_MEASUREMENT; cfg.heading_bins * radial];
     for (s, bin) in slice_bins.iter().enumerate().take(slices) {
         let Some(h) = *bin else { continue };
         let cells = ensemble_observation(
@@ -263,16 +255,16 @@ pub fn merge_cameras(per_camera: &[&[PolarCell]]) -> Vec<PolarCell> {
     let n = per_camera.iter().map(|c| c.len()).max().unwrap_or(0);
     (0..n)
         .map(|k| {
-            per_camera
-                .iter()
-                .filter_map(|c| c.get(k))
-                .fold(NO_MEASUREMENT, |best, &c| {
+            per_camera.iter().filter_map(|c| c.get(k)).fold(
+                PolarCell::NO_MEASUREMENT,
+                |best, &c| {
                     if c.variance < best.variance {
                         c
                     } else {
                         best
                     }
-                })
+                },
+            )
         })
         .collect()
 }
@@ -312,7 +304,7 @@ mod tests {
             class_id: 0,
             probability: 1.0 - variance,
         };
-        let front = [cell(2.0, 0.3), NO_MEASUREMENT];
+        let front = [cell(2.0, 0.3), PolarCell::NO_MEASUREMENT];
         let rear = [cell(0.5, 0.1), cell(0.4, 0.2)];
         let m = merge_cameras(&[&front, &rear]);
         assert_eq!((m[0].cost_s_per_m, m[1].cost_s_per_m), (0.5, 0.4));

@@ -25,12 +25,7 @@ pub fn ground_truth_bins(
     .into_iter()
     .map(|label| match label {
         Some(l) => l.to_polar_cell(rules),
-        None => PolarCell {
-            cost_s_per_m: f32::NAN,
-            variance: f32::INFINITY,
-            class_id: u32::MAX,
-            probability: 0.0,
-        },
+        None => PolarCell::NO_MEASUREMENT,
     })
     .collect()
 }
