@@ -35,8 +35,8 @@
 //! trials; interventions over all).
 
 use crate::bench::NavArgs;
-use crate::sim_tuning;
-use anyhow::Result;
+use crate::sim_tuning::{self, FITAM_MODEL, LRN_MODEL};
+use anyhow::{Context, Result};
 use farsight_costmap_fusion::kalman::FarFieldConfig;
 use farsight_costmap_fusion::map::FusionMap;
 use farsight_costmap_fusion::swath::PolarGeometry;
@@ -87,15 +87,6 @@ struct Controller {
     step: u64,
 }
 
-use sim_tuning::{FITAM_MODEL, LRN_MODEL};
-
-fn shipped_model(rel: &str) -> Result<farsight_inference::model_config::ModelConfig> {
-    use anyhow::Context;
-    let path = sim_tuning::shipped_model(rel)?;
-    farsight_inference::model_config::ModelConfig::load(&path)
-        .with_context(|| path.display().to_string())
-}
-
 /// The simulator's front camera through a shipped model, as the camera and
 /// inference stages run it.
 struct LearnedCamera {
@@ -109,7 +100,10 @@ impl LearnedCamera {
     fn new(model: &str) -> Result<Self> {
         let (w, h) = sim_tuning::IMAGE_SIZE;
         let camera = front_camera(w, h);
-        let onnx = farsight_inference::onnx::OnnxModel::load(&shipped_model(model)?)?;
+        let path = sim_tuning::shipped_model(model)?;
+        let config = farsight_inference::model_config::ModelConfig::load(&path)
+            .with_context(|| path.display().to_string())?;
+        let onnx = farsight_inference::onnx::OnnxModel::load(&config)?;
         Ok(Self {
             renderer: Renderer::new(&camera, 150.0),
             frame: Frame::default(),

@@ -204,9 +204,10 @@ pub fn run(d: SimDemo) -> Result<()> {
     // Each stage's config file, in start order.
     let model = |rel: &str| -> Result<String> {
         let path = sim_tuning::shipped_model(rel)?;
+        // A TOML string, escaped as TOML escapes (not as Rust's Debug does).
+        let quoted = toml::Value::String(path.canonicalize()?.display().to_string());
         Ok(format!(
-            "camera = \"front\"\nbackend = \"onnx\"\nmodel_config = {:?}\n",
-            path.canonicalize()?.display().to_string()
+            "camera = \"front\"\nbackend = \"onnx\"\nmodel_config = {quoted}\n"
         ))
     };
     let configs: Vec<(&'static str, String)> = match d.method {
