@@ -158,6 +158,48 @@ pub fn navigable_fraction(mask: &[u8], w: usize, h: usize, x: (f64, f64), y: (f6
     n as f64 / total.max(1) as f64
 }
 
+/// Polls a stage's health topic until a report satisfies `pred`; panics
+/// after `timeout` with the last report seen. Health is published about once
+/// a second, so tests read counts from it instead of racing the stage.
+pub fn wait_health(
+    health: &farsight_interfaces::transport::ipc::Subscriber<farsight_interfaces::msg::StageHealth>,
+    timeout: Duration,
+    what: &str,
+    pred: impl Fn(&farsight_interfaces::msg::StageHealth) -> bool,
+) -> farsight_interfaces::msg::StageHealth {
+    let end = Instant::now() + timeout;
+    let mut last = None;
+    while Instant::now() < end {
+        if let Some(h) = health.latest().expect("health topic") {
+            if pred(&h) {
+                return h;
+            }
+            last = Some(h);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    panic!("no health report {what} within {timeout:?}; last: {last:?}");
+}
+
+/// camera-ingest's config for the six real ORFD frames (one camera,
+/// `front`, with the ORFD intrinsics), plus `extra` keys of that camera.
+/// With `pace_by` in `extra` it is lock-step: each frame waits for the
+/// consumer's answer to the one before, so no frame is skipped however
+/// slow the machine.
+pub fn orfd_ingest_toml(extra: &str) -> String {
+    let frames = repo_root().join("../shared/data/orfd/image_data");
+    format!(
+        "[[cameras]]\nfolder = {}\n{extra}\n[cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\n",
+        toml_string(&frames.display().to_string())
+    )
+}
+
+/// `s` as a TOML string, written by the TOML serializer (Rust's `{:?}`
+/// quoting is not TOML for control characters).
+pub fn toml_string(s: &str) -> String {
+    toml::Value::String(s.to_string()).to_string()
+}
+
 /// The box of the ORFD frames where the dirt road lies ahead of the vehicle.
 pub const ORFD_ROAD_AHEAD: ((f64, f64), (f64, f64)) = ((0.25, 0.45), (0.80, 0.97));
 /// The top rows of the ORFD frames: sky.

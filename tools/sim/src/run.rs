@@ -78,9 +78,13 @@ pub struct RunArgs {
     #[arg(long)]
     pub oracle: bool,
     /// Lock-step: how long to wait for the graph's command before driving
-    /// the frame with none (counted as a late command). A graph that has
-    /// stopped answering (a stage down, no path) then costs this per frame.
-    #[arg(long, default_value_t = 0.5)]
+    /// the frame with none (counted as a late command). Simulated time
+    /// stands still while the graph works, so a slow or busy machine is
+    /// never late; only a graph that has stopped answering (a stage down)
+    /// should reach this, and then costs it per frame. Generous for that
+    /// reason: at 0.5 s a machine busy with other work made late commands
+    /// and changed the track.
+    #[arg(long, default_value_t = 10.0)]
     pub command_timeout_s: f64,
     #[arg(long, default_value = "out/sim")]
     pub out: PathBuf,
@@ -452,6 +456,11 @@ pub fn run(a: RunArgs) -> Result<Summary> {
             }
             _ => {
                 late += 1;
+                if late == 1 || late.is_multiple_of(100) {
+                    eprintln!(
+                        "frame {k}: no finite command from the graph ({late} late so far); is a stage down?"
+                    );
+                }
                 (0.0, 0.0)
             }
         };

@@ -2,8 +2,8 @@
 //!
 //! - `setup`: fetch ONNX Runtime from the `onnxruntime` PyPI wheel into the
 //!   cache (`$FARSIGHT_CACHE`, default `~/.cache/farsight`) and print its path;
-//! - `test`: every check CI runs: fmt, clippy, build, all tests, then one
-//!   summary line;
+//! - `test`: every check CI runs: fmt, clippy, build, each test binary on
+//!   its own, then the time of each phase and one summary line;
 //! - `bench NAME`: `farsight bench NAME` (transport, navigation, planning, nav, inference, recorder);
 //! - `demo`: build and run the closed loop in the simulator (`--orfd`: the graph
 //!   on the real frames in `../shared/data/orfd`);
@@ -149,60 +149,234 @@ fn setup() -> Result<PathBuf> {
     Ok(lib)
 }
 
-/// Runs `cargo test` with output passed through, and adds up its result lines.
-fn cargo_test(ort: &Path) -> Result<(u64, u64, u64)> {
-    let mut child = cargo()
-        .args(["test", "--release", "--workspace", "--no-fail-fast"])
-        .env("ORT_DYLIB_PATH", ort)
+/// Wall-clock time of each phase of `cargo xtask test`, printed as a table at
+/// the end (also when a phase fails), so a phase that grows is seen.
+#[derive(Default)]
+struct Phases {
+    rows: Vec<(String, f64, String)>,
+}
+
+impl Phases {
+    fn time<T>(&mut self, name: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+        let t0 = std::time::Instant::now();
+        let out = f();
+        let secs = t0.elapsed().as_secs_f64();
+        let note = match &out {
+            Ok(_) => String::new(),
+            Err(_) => "FAILED".to_string(),
+        };
+        self.rows.push((name.to_string(), secs, note));
+        out
+    }
+
+    fn note_last(&mut self, note: String) {
+        if let Some(row) = self.rows.last_mut() {
+            row.2 = note;
+        }
+    }
+
+    fn print(&self, total_s: f64) {
+        let width = self
+            .rows
+            .iter()
+            .map(|r| r.0.len())
+            .max()
+            .unwrap_or(5)
+            .max(5);
+        println!("\nxtask test: time per phase");
+        println!("| {:width$} | {:>8} | result", "phase", "s");
+        println!("|-{:-<width$}-|-{:->8}-|-------", "", "");
+        for (name, secs, note) in &self.rows {
+            println!("| {name:width$} | {secs:>8.1} | {note}");
+        }
+        println!("| {:width$} | {total_s:>8.1} |", "total");
+    }
+}
+
+/// Passed, failed and ignored counts of libtest's `test result:` line.
+fn parse_test_result(line: &str) -> Option<(u64, u64, u64)> {
+    let rest = line.strip_prefix("test result: ")?;
+    let num = |word: &str| {
+        rest.split(';')
+            .find_map(|part| part.trim().strip_suffix(word).map(str::trim))
+            .and_then(|n| n.rsplit(' ').next())
+            .and_then(|n| n.parse::<u64>().ok())
+            .unwrap_or(0)
+    };
+    Some((num("passed"), num("failed"), num("ignored")))
+}
+
+/// Runs `cmd` with its stdout passed through and adds up its `test result:`
+/// lines. A command that fails without a failed test (a crash, a build error)
+/// counts as one failure.
+fn run_counting(cmd: &mut Command) -> Result<(u64, u64, u64)> {
+    let mut child = cmd
         .stdout(Stdio::piped())
         .spawn()
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| format!("{:?}: {e}", cmd.get_program()))?;
     let (mut passed, mut failed, mut ignored) = (0, 0, 0);
     for line in BufReader::new(child.stdout.take().expect("stdout"))
         .lines()
         .map_while(|l| l.ok())
     {
         println!("{line}");
-        if let Some(rest) = line.strip_prefix("test result: ") {
-            let num = |word: &str| {
-                rest.split(';')
-                    .find_map(|part| part.trim().strip_suffix(word).map(str::trim))
-                    .and_then(|n| n.rsplit(' ').next())
-                    .and_then(|n| n.parse::<u64>().ok())
-                    .unwrap_or(0)
-            };
-            passed += num("passed");
-            failed += num("failed");
-            ignored += num("ignored");
+        if let Some((p, f, i)) = parse_test_result(&line) {
+            passed += p;
+            failed += f;
+            ignored += i;
         }
     }
     let status = child.wait().map_err(|e| e.to_string())?;
     if !status.success() && failed == 0 {
-        failed += 1; // a test binary that failed to build or crashed
+        failed += 1;
     }
     Ok((passed, failed, ignored))
 }
 
+/// One test executable cargo built: where it is, the package directory it
+/// runs in (as `cargo test` would) and a readable name.
+struct TestBinary {
+    exe: PathBuf,
+    package_dir: PathBuf,
+    name: String,
+}
+
+/// The value of string field `key` in one line of cargo's JSON messages.
+/// Enough for cargo's own output (paths and names, no escapes needed).
+fn json_str<'a>(line: &'a str, key: &str) -> Option<&'a str> {
+    let start = line.find(&format!("\"{key}\":\""))? + key.len() + 4;
+    let len = line[start..].find('"')?;
+    Some(&line[start..start + len])
+}
+
+/// Builds every test target and lists the executables, so each can be run
+/// and timed on its own.
+fn build_test_binaries() -> Result<Vec<TestBinary>> {
+    let out = cargo()
+        .args([
+            "test",
+            "--release",
+            "--workspace",
+            "--no-run",
+            "--message-format=json-render-diagnostics",
+        ])
+        .stderr(Stdio::inherit())
+        .output()
+        .map_err(|e| format!("cargo test --no-run: {e}"))?;
+    if !out.status.success() {
+        return Err(format!("cargo test --no-run failed ({})", out.status));
+    }
+    let root = root();
+    let mut bins = Vec::new();
+    for line in String::from_utf8_lossy(&out.stdout).lines() {
+        // Test harnesses only: `--no-run` also reports the plain binaries
+        // the integration tests start.
+        let profile = line
+            .find("\"profile\":{")
+            .and_then(|i| line[i..].find('}').map(|j| &line[i..i + j]));
+        if !line.contains("\"reason\":\"compiler-artifact\"")
+            || !profile.is_some_and(|p| p.contains("\"test\":true"))
+        {
+            continue;
+        }
+        let (Some(exe), Some(manifest)) = (
+            json_str(line, "executable"),
+            json_str(line, "manifest_path"),
+        ) else {
+            continue;
+        };
+        let package_dir = Path::new(manifest)
+            .parent()
+            .ok_or("manifest without a folder")?
+            .to_path_buf();
+        let target = json_str(line, "name").unwrap_or("?");
+        let kind = line
+            .find("\"kind\":[\"")
+            .map(|i| &line[i + 9..])
+            .and_then(|k| k.split('"').next())
+            .unwrap_or("?");
+        let rel = package_dir
+            .strip_prefix(&root)
+            .unwrap_or(&package_dir)
+            .display()
+            .to_string();
+        let rel = if rel.is_empty() { ".".into() } else { rel };
+        bins.push(TestBinary {
+            exe: PathBuf::from(exe),
+            package_dir,
+            name: format!("{rel} {target} ({kind})"),
+        });
+    }
+    bins.sort_by(|a, b| a.name.cmp(&b.name));
+    Ok(bins)
+}
+
+/// Runs one test executable the way `cargo test` would: in its package's
+/// folder, with that package's `CARGO_MANIFEST_DIR`.
+fn run_test_binary(bin: &TestBinary, ort: &Path) -> Result<(u64, u64, u64)> {
+    let mut cmd = Command::new(&bin.exe);
+    for (k, _) in std::env::vars_os() {
+        if k.to_string_lossy().starts_with("CARGO_") {
+            cmd.env_remove(k);
+        }
+    }
+    cmd.current_dir(&bin.package_dir)
+        .env("CARGO_MANIFEST_DIR", &bin.package_dir)
+        .env("ORT_DYLIB_PATH", ort);
+    run_counting(&mut cmd)
+}
+
 fn test() -> Result<()> {
-    let ort = setup()?;
-    run(cargo().args(["fmt", "--all", "--check"]))?;
-    run(cargo().args([
-        "clippy",
-        "--release",
-        "--workspace",
-        "--all-targets",
-        "--",
-        "-D",
-        "warnings",
-    ]))?;
-    // The end-to-end tests start the real binaries, so build them all first.
-    run(cargo().args(["build", "--release", "--workspace"]))?;
-    let (passed, failed, ignored) = cargo_test(&ort)?;
+    let t0 = std::time::Instant::now();
+    let mut phases = Phases::default();
+    let result = test_phases(&mut phases);
+    phases.print(t0.elapsed().as_secs_f64());
+    let (passed, failed, ignored) = result?;
     println!("summary: {passed} passed, {failed} failed, {ignored} skipped");
     if failed > 0 {
         return Err(format!("{failed} tests failed"));
     }
     Ok(())
+}
+
+fn test_phases(phases: &mut Phases) -> Result<(u64, u64, u64)> {
+    let ort = phases.time("setup (ONNX Runtime)", setup)?;
+    phases.time("fmt", || run(cargo().args(["fmt", "--all", "--check"])))?;
+    phases.time("clippy", || {
+        run(cargo().args([
+            "clippy",
+            "--release",
+            "--workspace",
+            "--all-targets",
+            "--",
+            "-D",
+            "warnings",
+        ]))
+    })?;
+    // The end-to-end tests start the real binaries, so build them all first.
+    phases.time("build binaries", || {
+        run(cargo().args(["build", "--release", "--workspace"]))
+    })?;
+    let bins = phases.time("build tests", build_test_binaries)?;
+    let (mut passed, mut failed, mut ignored) = (0, 0, 0);
+    for bin in &bins {
+        eprintln!("xtask: running {}", bin.name);
+        let (p, f, i) =
+            phases.time(&format!("test {}", bin.name), || run_test_binary(bin, &ort))?;
+        phases.note_last(format!("{p} passed, {f} failed"));
+        passed += p;
+        failed += f;
+        ignored += i;
+    }
+    let (p, f, i) = phases.time("doc tests", || {
+        run_counting(
+            cargo()
+                .args(["test", "--release", "--workspace", "--doc"])
+                .env("ORT_DYLIB_PATH", &ort),
+        )
+    })?;
+    phases.note_last(format!("{p} passed, {f} failed"));
+    Ok((passed + p, failed + f, ignored + i))
 }
 
 fn bench(args: &[String]) -> Result<()> {
