@@ -423,6 +423,18 @@ impl Proc {
     }
 
     /// SIGTERM, then wait for a clean exit; returns the exit code.
+    /// Sends signal `name` (`STOP`, `CONT`, `INT`, `TERM`, ...) with `kill`.
+    pub fn signal(&self, name: &str) {
+        let pid = self.pid();
+        assert!(pid != 0, "{} has been reaped", self.name);
+        let ok = Command::new("kill")
+            .arg(format!("-{name}"))
+            .arg(pid.to_string())
+            .status()
+            .is_ok_and(|s| s.success());
+        assert!(ok, "kill -{name} {pid} ({})", self.name);
+    }
+
     pub fn terminate(&mut self, timeout: Duration) -> Option<i32> {
         let pid = self.pid();
         if pid == 0 {

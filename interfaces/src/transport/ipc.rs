@@ -151,6 +151,16 @@ impl Bus {
         &self.node
     }
 
+    /// Whether SIGTERM or SIGINT has arrived, for loops that do not sleep
+    /// in [`wait_loop`]. A wait cut short for another reason (SIGCONT after
+    /// a freeze) is not a request to stop.
+    pub fn termination_requested(&self) -> bool {
+        matches!(
+            self.node.wait(Duration::ZERO),
+            Err(iceoryx2::node::NodeWaitFailure::TerminationRequest)
+        )
+    }
+
     pub fn name(&self) -> &str {
         &self.name
     }
@@ -658,28 +668,36 @@ pub fn wait_loop(
         ),
         None => None,
     };
-    let result = waitset
-        .wait_and_process(|id| {
-            let mut wake = None;
-            for (i, (listener, guard)) in inputs.iter().zip(&guards).enumerate() {
-                if id.has_event_from(guard) {
-                    let _ = listener.try_wait(|_| {});
-                    wake = Some(Wake::Input(i));
-                }
+    // A stopped process (SIGSTOP, Ctrl-Z) that is continued sees its wait
+    // interrupted (EINTR), which iceoryx2 reports as `Interrupt` like SIGINT.
+    // Only a recorded SIGTERM/SIGINT ends the loop: the next call returns
+    // `TerminationRequest` at once if one arrived, and otherwise waits on.
+    let mut process = |id: WaitSetAttachmentId<ipc::Service>| {
+        let mut wake = None;
+        for (i, (listener, guard)) in inputs.iter().zip(&guards).enumerate() {
+            if id.has_event_from(guard) {
+                let _ = listener.try_wait(|_| {});
+                wake = Some(Wake::Input(i));
             }
-            if let Some(g) = &tick_guard {
-                if id.has_event_from(g) {
-                    wake = Some(Wake::Tick);
-                }
+        }
+        if let Some(g) = &tick_guard {
+            if id.has_event_from(g) {
+                wake = Some(Wake::Tick);
             }
-            match wake.map(&mut on_wake) {
-                Some(ControlFlow::Break(())) => CallbackProgression::Stop,
-                _ => CallbackProgression::Continue,
-            }
-        })
-        .map_err(|e| ipc_err("waitset wait", "-", e))?;
-    Ok(match result {
-        WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => LoopExit::Terminated,
-        _ => LoopExit::Stopped,
-    })
+        }
+        match wake.map(&mut on_wake) {
+            Some(ControlFlow::Break(())) => CallbackProgression::Stop,
+            _ => CallbackProgression::Continue,
+        }
+    };
+    loop {
+        let result = waitset
+            .wait_and_process(&mut process)
+            .map_err(|e| ipc_err("waitset wait", "-", e))?;
+        match result {
+            WaitSetRunResult::TerminationRequest => return Ok(LoopExit::Terminated),
+            WaitSetRunResult::Interrupt => continue,
+            _ => return Ok(LoopExit::Stopped),
+        }
+    }
 }

@@ -333,8 +333,7 @@ fn run() -> Result<()> {
         .collect::<Result<Vec<_>>>()?;
     let mut pace_timeouts = 0u64;
     loop {
-        // SIGTERM/SIGINT: iceoryx2's signal handling reports it through the node.
-        if bus.node().wait(Duration::ZERO).is_err() {
+        if bus.termination_requested() {
             tracing::info!("termination requested");
             break;
         }

@@ -10,7 +10,8 @@
 //! - [`Health`]: the stage's [`StageHealth`] message, published at a fixed rate;
 //! - shutdown: [`farsight_interfaces::transport::ipc::wait_loop`] returns
 //!   `Terminated` on SIGTERM/SIGINT, and the stage publishes a last
-//!   `stopping` health message before it exits.
+//!   `stopping` health message before it exits. A freeze (SIGSTOP, then
+//!   SIGCONT) is not a shutdown: the loop waits on.
 //!
 //! ```no_run
 //! use farsight_stage::{load_config, StageArgs, Validate, ConfigError, Health};
