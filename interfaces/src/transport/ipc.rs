@@ -672,7 +672,11 @@ pub fn wait_loop(
     // interrupted (EINTR), which iceoryx2 reports as `Interrupt` like SIGINT.
     // Only a recorded SIGTERM/SIGINT ends the loop: the next call returns
     // `TerminationRequest` at once if one arrived, and otherwise waits on.
+    let wedge_at = test_hook_wedge_at();
     let mut process = |id: WaitSetAttachmentId<ipc::Service>| {
+        if wedge_at.is_some_and(|t| std::time::Instant::now() >= t) {
+            wedge();
+        }
         let mut wake = None;
         for (i, (listener, guard)) in inputs.iter().zip(&guards).enumerate() {
             if id.has_event_from(guard) {
@@ -699,5 +703,24 @@ pub fn wait_loop(
             WaitSetRunResult::Interrupt => continue,
             _ => return Ok(LoopExit::Stopped),
         }
+    }
+}
+
+/// Test hook (`tests/watchdog.rs`): with `FARSIGHT_TEST_WEDGE_AFTER_S=N` in
+/// its environment, the loop's step hangs N seconds after [`wait_loop`]
+/// starts, as a stuck step would, so a test can see the watchdog pings stop
+/// while the process lives. Never set outside tests.
+fn test_hook_wedge_at() -> Option<std::time::Instant> {
+    let s: f64 = std::env::var("FARSIGHT_TEST_WEDGE_AFTER_S")
+        .ok()?
+        .parse()
+        .ok()?;
+    (s.is_finite() && s >= 0.0).then(|| std::time::Instant::now() + Duration::from_secs_f64(s))
+}
+
+fn wedge() -> ! {
+    eprintln!("test hook: step wedged (FARSIGHT_TEST_WEDGE_AFTER_S)");
+    loop {
+        std::thread::park();
     }
 }

@@ -8,6 +8,7 @@
 //!   names the file, key, value and what was expected;
 //! - [`init_tracing`]: `RUST_LOG`-style filters, JSON lines for journald;
 //! - [`Health`]: the stage's [`StageHealth`] message, published at a fixed rate;
+//!   its tick also pings systemd's watchdog ([`watchdog`]);
 //! - shutdown: [`farsight_interfaces::transport::ipc::wait_loop`] returns
 //!   `Terminated` on SIGTERM/SIGINT, and the stage publishes a last
 //!   `stopping` health message before it exits. A freeze (SIGSTOP, then
@@ -40,6 +41,8 @@
 //! health.stopping(WallClock.now_ns());
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
+
+pub mod watchdog;
 
 use farsight_interfaces::fixed::FixedStr;
 use farsight_interfaces::msg::{HealthState, StageHealth, Stamp};
@@ -293,10 +296,11 @@ pub fn run_main<E: Display>(stage: &str, run: impl FnOnce() -> Result<(), E>) {
 }
 
 /// Tells launchers and tests the stage is set up: prints `<stage> ready` on
-/// stdout (logs go to stderr) and logs it.
+/// stdout (logs go to stderr), logs it and tells systemd (`READY=1`).
 pub fn announce_ready(stage: &str) {
     use std::io::Write;
     tracing::info!("{stage} ready");
+    watchdog::notify_ready();
     let mut out = std::io::stdout();
     let _ = writeln!(out, "{stage} ready");
     let _ = out.flush();
@@ -309,6 +313,7 @@ pub struct Health {
     period_ns: u64,
     last_sent_ns: Option<u64>,
     seq: u64,
+    watchdog: watchdog::Watchdog,
 }
 
 impl Health {
@@ -326,6 +331,7 @@ impl Health {
             period_ns: (1e9 / rate_hz.max(0.01)) as u64,
             last_sent_ns: None,
             seq: 0,
+            watchdog: watchdog::Watchdog::from_env(),
         })
     }
 
@@ -374,8 +380,11 @@ impl Health {
         &self.msg
     }
 
-    /// Publishes if the period has passed since the last report (or the state changed).
+    /// Publishes if the period has passed since the last report (or the state
+    /// changed), and pings systemd's watchdog: call it from the loop thread on
+    /// every tick, so only a loop that keeps turning keeps the stage alive.
     pub fn tick(&mut self, now_ns: u64) {
+        self.watchdog.pet();
         let due = match self.last_sent_ns {
             None => true,
             Some(t) => now_ns.saturating_sub(t) >= self.period_ns,
@@ -396,6 +405,7 @@ impl Health {
 
     /// Publishes a final `stopping` report (on SIGTERM).
     pub fn stopping(&mut self, now_ns: u64) {
+        watchdog::notify_stopping();
         self.set(HealthState::STOPPING, "shutting down");
         self.send(now_ns);
     }
