@@ -73,6 +73,13 @@ pub struct TopicView {
 pub struct GraphView {
     pub topics: BTreeMap<String, TopicView>,
     pub health: BTreeMap<String, StageHealth>,
+    /// Per stage: the smallest (receive time here - report time there) of
+    /// its health reports, in ms. Each report is stamped with the stage's
+    /// wall clock, so this is the stage clock's lag behind this machine's
+    /// plus the shortest transport delay seen (NTP's minimum-delay filter):
+    /// a large value, or a negative one, means the clocks disagree, and
+    /// staleness judged on capture times across machines is then wrong.
+    pub clock_offset_ms: BTreeMap<String, f64>,
 }
 
 /// Capture times before this are not wall-clock (a replay or simulation's clock).
@@ -96,7 +103,13 @@ impl GraphView {
         }
         if kind_of(topic) == Some(TopicKind::Health) {
             if let Ok(h) = wire::decode_message::<StageHealth>(bytes) {
-                self.health.insert(h.stage.as_str().to_string(), h);
+                let name = h.stage.as_str().to_string();
+                if h.stamp.capture_time_ns > WALL_CLOCK_AFTER_NS {
+                    let seen_ms = (now_ns as i128 - h.stamp.capture_time_ns as i128) as f64 * 1e-6;
+                    let offset = self.clock_offset_ms.entry(name.clone()).or_insert(seen_ms);
+                    *offset = offset.min(seen_ms);
+                }
+                self.health.insert(name, h);
             }
         }
     }
@@ -105,8 +118,8 @@ impl GraphView {
     pub fn render(&self) -> String {
         let mut s = String::from("stages (alive: health heard)\n");
         s += &format!(
-            "  {:<20} {:<9} {:>8} {:>8} {:>7} {:>7} {:>10}  reason\n",
-            "stage", "state", "in", "out", "dropped", "skipped", "latency ms"
+            "  {:<20} {:<9} {:>8} {:>8} {:>7} {:>7} {:>10} {:>9}  reason\n",
+            "stage", "state", "in", "out", "dropped", "skipped", "latency ms", "clock ms"
         );
         for (name, h) in &self.health {
             // A stage on a replay's or simulation's clock measures its
@@ -116,8 +129,14 @@ impl GraphView {
             } else {
                 "-".into()
             };
+            // The stage clock's lag behind this machine's, upper-bounded by
+            // the transport delay ("-": the stage runs on a replay's clock).
+            let clock = self
+                .clock_offset_ms
+                .get(name)
+                .map_or_else(|| "-".to_string(), |ms| format!("{ms:+.1}"));
             s += &format!(
-                "  {:<20} {:<9} {:>8} {:>8} {:>7} {:>7} {:>10}  {}\n",
+                "  {:<20} {:<9} {:>8} {:>8} {:>7} {:>7} {:>10} {:>9}  {}\n",
                 name,
                 h.state.name().unwrap_or("?"),
                 h.messages_in,
@@ -125,6 +144,7 @@ impl GraphView {
                 h.dropped,
                 h.skipped,
                 latency,
+                clock,
                 h.reason.as_str()
             );
         }
@@ -433,6 +453,42 @@ mod tests {
     }
 
     #[test]
+    fn each_stages_clock_offset_is_the_smallest_lag_of_its_reports() {
+        let mut v = GraphView::default();
+        let t0 = 1_700_000_000_000_000_000u64;
+        let mut h = StageHealth::default();
+        h.stage = farsight_interfaces::fixed::FixedStr::new("inference").unwrap();
+        // The stage's clock runs 250 ms behind this machine's; its reports
+        // take 3 to 40 ms to arrive.
+        for (k, delay_ms) in [40u64, 3, 17].into_iter().enumerate() {
+            let stage_time = t0 + k as u64 * 1_000_000_000;
+            h.stamp = Stamp::new(k as u64, stage_time);
+            let heard = stage_time + 250_000_000 + delay_ms * 1_000_000;
+            v.observe(
+                "health/inference",
+                &wire::encode_message(&h).unwrap(),
+                heard,
+            );
+        }
+        assert!((v.clock_offset_ms["inference"] - 253.0).abs() < 1e-6);
+        // A stage ahead of this machine shows a negative offset.
+        h.stage = farsight_interfaces::fixed::FixedStr::new("bridge").unwrap();
+        h.stamp = Stamp::new(1, t0 + 2_000_000_000);
+        v.observe("health/bridge", &wire::encode_message(&h).unwrap(), t0);
+        assert!((v.clock_offset_ms["bridge"] + 2000.0).abs() < 1e-6);
+        assert!(v.render().contains("-2000.0"), "{}", v.render());
+        // On a replay's clock (not wall time) there is no offset to show.
+        h.stage = farsight_interfaces::fixed::FixedStr::new("servo").unwrap();
+        h.stamp = Stamp::new(1, 5_000_000_000);
+        v.observe(
+            "health/velocity-servoing",
+            &wire::encode_message(&h).unwrap(),
+            t0,
+        );
+        assert!(!v.clock_offset_ms.contains_key("servo"));
+    }
+
+    #[test]
     fn the_view_counts_rates_latency_and_health() {
         let mut v = GraphView::default();
         let t0 = 1_700_000_000_000_000_000u64;
@@ -449,6 +505,7 @@ mod tests {
             );
         }
         let mut h = StageHealth {
+            stamp: Stamp::new(0, t0),
             state: HealthState::DEGRADED,
             ..Default::default()
         };
@@ -469,6 +526,14 @@ mod tests {
         assert!(
             text.lines()
                 .any(|l| l.contains("state/pose") && l.contains("10.00") && l.contains("20.0")),
+            "{text}"
+        );
+        // The health report was stamped t0 on the stage's clock and heard
+        // at t0 here: clocks agree.
+        assert_eq!(v.clock_offset_ms["velocity-servoing"], 0.0);
+        assert!(
+            text.lines()
+                .any(|l| l.contains("velocity-servoing") && l.contains("+0.0")),
             "{text}"
         );
         // Garbage on a topic is ignored, not counted.
