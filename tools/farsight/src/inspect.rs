@@ -456,8 +456,10 @@ mod tests {
     fn each_stages_clock_offset_is_the_smallest_lag_of_its_reports() {
         let mut v = GraphView::default();
         let t0 = 1_700_000_000_000_000_000u64;
-        let mut h = StageHealth::default();
-        h.stage = farsight_interfaces::fixed::FixedStr::new("inference").unwrap();
+        let mut h = StageHealth {
+            stage: farsight_interfaces::fixed::FixedStr::new("inference").unwrap(),
+            ..Default::default()
+        };
         // The stage's clock runs 250 ms behind this machine's; its reports
         // take 3 to 40 ms to arrive.
         for (k, delay_ms) in [40u64, 3, 17].into_iter().enumerate() {
