@@ -95,6 +95,16 @@ fn demo(ns: &Namespace, name: &str, args: &[&str]) -> std::path::PathBuf {
     out
 }
 
+/// `farsight-sim run ARGS` at 160x90 (no graph: the test plays it), writing
+/// into a fresh folder; returns the process and the folder.
+fn small_sim(ns: &Namespace, args: &[&str]) -> (Proc, std::path::PathBuf) {
+    let out = ns.write("placeholder", "").with_file_name("sim");
+    let mut all = vec!["run", "--width", "160", "--height", "90"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--out", out.to_str().unwrap()]);
+    (Proc::start("farsight-sim", &all, ns), out)
+}
+
 fn poses(path: &std::path::Path) -> String {
     std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
@@ -201,12 +211,10 @@ fn the_simulator_publishes_every_camera_it_is_asked_for_each_looking_its_own_way
         .unwrap();
     let rear = bus.slice_subscriber(&topics::camera_image("rear")).unwrap();
     let rear_info = bus.subscriber(&topics::camera_info("rear")).unwrap();
-    let out = ns.write("placeholder", "").with_file_name("sim");
     // No graph answers: each frame waits 50 ms for a command, then drives none.
-    let mut sim = Proc::start(
-        "farsight-sim",
+    let (mut sim, _) = small_sim(
+        &ns,
         &[
-            "run",
             "--scenario",
             "bug-trap",
             "--cameras",
@@ -215,14 +223,7 @@ fn the_simulator_publishes_every_camera_it_is_asked_for_each_looking_its_own_way
             "1",
             "--command-timeout-s",
             "0.05",
-            "--width",
-            "160",
-            "--height",
-            "90",
-            "--out",
-            out.to_str().unwrap(),
         ],
-        &ns,
     );
     let (mut f, mut r, mut info) = (None, None, None);
     let end = Instant::now() + Duration::from_secs(20);
@@ -254,5 +255,85 @@ fn the_simulator_publishes_every_camera_it_is_asked_for_each_looking_its_own_way
     assert!(
         (bearing.abs() - std::f64::consts::PI).abs() < 1e-6,
         "{bearing}"
+    );
+}
+
+/// The simulated robot is a base like a real one: it holds the last command
+/// for that command's time-to-live from receipt, then stops, so a command
+/// writer that dies stops the robot. Lock-step, so it is decided on the
+/// simulated clock alone: the test answers only every 4th frame with a
+/// 0.8 s time-to-live (8 frames), then falls silent like a killed servo.
+#[test]
+fn the_simulated_base_obeys_a_command_for_its_ttl_then_stops() {
+    use farsight_interfaces::msg::{CommandReason, Stamp, VelocityCommand};
+    use farsight_interfaces::topics;
+    use std::time::Instant;
+    let ns = Namespace::new("basettl");
+    let bus = ns.bus("basettl-test");
+    let pose_sub = bus.subscriber(&topics::pose()).unwrap();
+    let commands = bus.publisher(&topics::velocity_command()).unwrap();
+    // bush-wall: open ground for the first 40 m ahead of the start.
+    let (mut sim, out) = small_sim(
+        &ns,
+        &[
+            "--scenario",
+            "bush-wall",
+            "--max-time-s",
+            "8",
+            "--command-timeout-s",
+            "0.2",
+        ],
+    );
+    const LAST_ANSWERED: u64 = 41;
+    let mut answered = Vec::new();
+    let end = Instant::now() + Duration::from_secs(120);
+    let code = loop {
+        if let Some(code) = sim.wait_exit(Duration::ZERO) {
+            break code;
+        }
+        assert!(Instant::now() < end, "{}", sim.stderr_so_far());
+        if let Some(p) = pose_sub.latest().unwrap() {
+            let k = p.stamp.frame_seq;
+            if k % 4 == 1 && k <= LAST_ANSWERED {
+                commands
+                    .publish(&VelocityCommand {
+                        stamp: Stamp::new(k, p.stamp.capture_time_ns),
+                        linear_mps: 0.5,
+                        angular_radps: 0.0,
+                        reason: CommandReason::TELEOP,
+                        ttl_ms: 800,
+                    })
+                    .unwrap();
+                answered.push(k);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    };
+    assert_eq!(code, 0, "{}", sim.stderr_so_far());
+    assert!(answered.contains(&LAST_ANSWERED), "{answered:?}");
+    // x along the track, one row per frame (t = 0.1 s * frame).
+    let xs: Vec<f64> = poses(&out.join("poses.csv"))
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(1).unwrap().parse().unwrap())
+        .collect();
+    assert!(xs.len() >= 80, "8 s at 10 Hz: {} poses", xs.len());
+    let at = |frame: u64| xs[frame as usize - 1];
+    // Held between answers, the robot drove on at 0.5 m/s: about 1.8 m by
+    // frame 41. Had the base stopped on every unanswered frame, it would
+    // have crept (one frame of acceleration in four).
+    let driven = at(LAST_ANSWERED) - at(1);
+    assert!(driven > 1.2, "drove {driven:.2} m on held commands");
+    // Silent after frame 41: at most 0.8 s more at 0.5 m/s plus braking,
+    // then standing still for the rest of the run.
+    let coasted = xs[xs.len() - 1] - at(LAST_ANSWERED);
+    assert!(
+        (0.2..0.6).contains(&coasted),
+        "moved {coasted:.2} m after the last command"
+    );
+    let tail = &xs[60..];
+    assert!(
+        tail.iter().all(|&x| x == tail[0]),
+        "stopped once the last command expired: {tail:?}"
     );
 }

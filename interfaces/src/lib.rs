@@ -9,7 +9,9 @@
 //! - [`camera`]: pinhole and fisheye camera models and mounts;
 //! - [`geo`]: the local ENU frame that GPS goals are converted into;
 //! - [`transport`]: publish / latest-value subscribe over iceoryx2 and zenoh;
-//! - [`clock`]: injected time (wall clock on the robot, replay clock in tests).
+//! - [`clock`]: injected time (wall clock on the robot, replay clock in tests);
+//! - [`base`]: the base-side contract for velocity commands: obey each for
+//!   its time-to-live from receipt, then stop.
 //!
 //! ```no_run
 //! use farsight_interfaces::{msg::*, topics, transport::ipc::Bus};
@@ -30,6 +32,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod base;
 pub mod camera;
 pub mod clock;
 pub mod fixed;

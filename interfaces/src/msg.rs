@@ -465,6 +465,11 @@ pub struct VelocityCommand {
     pub linear_mps: f32,
     pub angular_radps: f32,
     pub reason: CommandReason,
+    /// How long a base may obey this command after it *received* it, in
+    /// milliseconds (then it stops unless a newer command has come): counted
+    /// on the base's own clock, since that is not synchronised with the
+    /// graph's. 0: the base's own cap. See [`crate::base`].
+    pub ttl_ms: u16,
 }
 
 impl VelocityCommand {
@@ -474,6 +479,7 @@ impl VelocityCommand {
             linear_mps: 0.0,
             angular_radps: 0.0,
             reason,
+            ttl_ms: 0,
         }
     }
 }

@@ -163,6 +163,7 @@ mod tests {
             linear_mps: 0.5,
             angular_radps: -0.25,
             reason: CommandReason::TRACKING,
+            ttl_ms: 250,
         };
         let bytes = encode_message(&cmd).unwrap();
         assert_eq!(decode_message::<VelocityCommand>(&bytes).unwrap(), cmd);

@@ -4,7 +4,9 @@
 //! control law and the acceleration limits; a stale input, an active e-stop or
 //! a reached goal give zero velocity at once, with the reason in the command
 //! and in the stage's health. An old command is never republished: every
-//! output is computed from the inputs of that moment.
+//! output is computed from the inputs of that moment. Every command carries
+//! `command_ttl_s` as its time-to-live, so a base stops by itself once this
+//! stage dies or freezes (farsight_interfaces::base).
 //!
 //! With `clock = "stamps"` (lock-step simulation, replays) time is the
 //! inputs' capture times and each new tracked input gets one command, so a
@@ -217,6 +219,7 @@ fn run() -> Result<()> {
                                 linear_mps: v as f32,
                                 angular_radps: w as f32,
                                 reason: CommandReason::TRACKING,
+                                ..Default::default()
                             }
                         }
                         Err(why) => {
@@ -228,6 +231,10 @@ fn run() -> Result<()> {
                         }
                     }
                 }
+            };
+            let cmd = VelocityCommand {
+                ttl_ms: config.command_ttl_ms(),
+                ..cmd
             };
             match commands.publish(&cmd) {
                 Ok(()) => health.output(stamp, now),

@@ -11,6 +11,9 @@
 //!                                # LRN heading) or "path" (a planner's path, by carrot)
 //! path_topic = "planned"         # with track = "path": nav/path/<path_topic>
 //! subgoal_deadline_s = 0.5       # an older tracked input (subgoal or path) stops the robot
+//! command_ttl_s = 0.25           # every command's time-to-live: the base obeys it this
+//!                                # long after receipt, then stops unless a newer one came
+//!                                # (so a dead or frozen servo stops the robot)
 //! health_rate_hz = 1.0
 //! # anchor_latitude_deg / anchor_longitude_deg: the ENU origin for GPS goals
 //! # (default: the first GPS fix in the pose)
@@ -53,6 +56,7 @@ pub struct ServoStageConfig {
     pub track: Track,
     pub path_topic: String,
     pub subgoal_deadline_s: f64,
+    pub command_ttl_s: f64,
     pub health_rate_hz: f64,
     pub anchor_latitude_deg: Option<f64>,
     pub anchor_longitude_deg: Option<f64>,
@@ -67,6 +71,7 @@ impl Default for ServoStageConfig {
             track: Track::Subgoal,
             path_topic: "planned".into(),
             subgoal_deadline_s: 0.5,
+            command_ttl_s: 0.25,
             health_rate_hz: 1.0,
             anchor_latitude_deg: None,
             anchor_longitude_deg: None,
@@ -89,6 +94,16 @@ impl Validate for ServoStageConfig {
             self.subgoal_deadline_s,
             "a positive time in seconds",
         )?;
+        // A TTL shorter than the output period would stop the base between
+        // two commands of a healthy servo.
+        ConfigError::check(
+            self.command_ttl_s.is_finite()
+                && self.command_ttl_s * self.output_rate_hz >= 1.0
+                && self.command_ttl_s <= 60.0,
+            "command_ttl_s",
+            self.command_ttl_s,
+            "seconds, at least one output period (1 / output_rate_hz) and at most 60",
+        )?;
         ConfigError::check(
             self.health_rate_hz > 0.0,
             "health_rate_hz",
@@ -103,5 +118,14 @@ impl Validate for ServoStageConfig {
         )?;
         farsight_stage::check_anchor(self.anchor_latitude_deg, self.anchor_longitude_deg)?;
         self.servo.validate()
+    }
+}
+
+impl ServoStageConfig {
+    /// [`Self::command_ttl_s`] as the command's `ttl_ms` field.
+    pub fn command_ttl_ms(&self) -> u16 {
+        (self.command_ttl_s * 1e3)
+            .round()
+            .clamp(1.0, f64::from(u16::MAX)) as u16
     }
 }

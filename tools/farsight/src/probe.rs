@@ -319,6 +319,8 @@ fn net_publish_nav(a: NetPublishNavArgs) -> Result<()> {
                 linear_mps: 0.2,
                 angular_radps: 0.0,
                 reason: CommandReason::TELEOP,
+                // Sent every 50 ms: obeyed for two periods, then the base stops.
+                ttl_ms: 100,
             })?;
         }
         seq += 1;

@@ -86,6 +86,11 @@ pub struct RunArgs {
     /// and changed the track.
     #[arg(long, default_value_t = 10.0)]
     pub command_timeout_s: f64,
+    /// The simulated base obeys each command for its time-to-live from
+    /// receipt (`ttl_ms`), at most this long (s), then stops: a dead or
+    /// frozen command writer stops the robot (farsight_interfaces::base).
+    #[arg(long, default_value_t = 1.0)]
+    pub base_max_ttl_s: f64,
     #[arg(long, default_value = "out/sim")]
     pub out: PathBuf,
     /// Who drives: the graph's commands, or the expert (A* on the true map).
@@ -343,6 +348,7 @@ pub fn run(a: RunArgs) -> Result<Summary> {
         .with_context(|| format!("creating {}", trace_path.display()))?;
     let dt = 1.0 / a.rate_hz;
     let mut late = 0u32;
+    let mut base = farsight_interfaces::base::CommandGate::new(a.base_max_ttl_s);
     anyhow::ensure!(
         a.pose_noise_m >= 0.0 && a.yaw_noise_deg >= 0.0,
         "--pose-noise-m {} / --yaw-noise-deg {}: noise must be 0 or more",
@@ -446,24 +452,22 @@ pub fn run(a: RunArgs) -> Result<Summary> {
                 }
             },
         };
-        let (v, w_) = match command {
-            Some(VelocityCommand {
-                linear_mps,
-                angular_radps,
-                ..
-            }) if linear_mps.is_finite() && angular_radps.is_finite() => {
-                (linear_mps as f64, angular_radps as f64)
+        // The robot is a base like any other: it holds the last command it
+        // received for that command's time-to-live, then stops.
+        let fresh =
+            command.is_some_and(|c| c.linear_mps.is_finite() && c.angular_radps.is_finite());
+        if let Some(c) = command {
+            base.receive(c, episode.time_s);
+        }
+        if !fresh {
+            late += 1;
+            if late == 1 || late.is_multiple_of(100) {
+                eprintln!(
+                    "frame {k}: no finite command from the graph ({late} late so far); is a stage down?"
+                );
             }
-            _ => {
-                late += 1;
-                if late == 1 || late.is_multiple_of(100) {
-                    eprintln!(
-                        "frame {k}: no finite command from the graph ({late} late so far); is a stage down?"
-                    );
-                }
-                (0.0, 0.0)
-            }
-        };
+        }
+        let (v, w_) = base.command(episode.time_s);
         let outcome = episode.step((v, w_), dt);
         trace.record(&episode)?;
         if k % (5.0 * a.rate_hz).max(1.0) as u64 == 0 {
