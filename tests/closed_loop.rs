@@ -272,19 +272,21 @@ fn the_simulated_base_obeys_a_command_for_its_ttl_then_stops() {
     let bus = ns.bus("basettl-test");
     let pose_sub = bus.subscriber(&topics::pose()).unwrap();
     let commands = bus.publisher(&topics::velocity_command()).unwrap();
-    // bush-wall: open ground for the first 40 m ahead of the start.
+    // bush-wall: open ground for the first 40 m ahead of the start. Each
+    // frame waits up to 0.5 s for the test's answer; the unanswered ones
+    // cost that, hence a short run.
     let (mut sim, out) = small_sim(
         &ns,
         &[
             "--scenario",
             "bush-wall",
             "--max-time-s",
-            "8",
+            "4",
             "--command-timeout-s",
-            "0.2",
+            "0.5",
         ],
     );
-    const LAST_ANSWERED: u64 = 41;
+    const LAST_ANSWERED: u64 = 21;
     let mut answered = Vec::new();
     let end = Instant::now() + Duration::from_secs(120);
     let code = loop {
@@ -310,28 +312,35 @@ fn the_simulated_base_obeys_a_command_for_its_ttl_then_stops() {
         std::thread::sleep(Duration::from_millis(1));
     };
     assert_eq!(code, 0, "{}", sim.stderr_so_far());
-    assert!(answered.contains(&LAST_ANSWERED), "{answered:?}");
+    assert_eq!(answered, vec![1, 5, 9, 13, 17, 21]);
     // x along the track, one row per frame (t = 0.1 s * frame).
     let xs: Vec<f64> = poses(&out.join("poses.csv"))
         .lines()
         .skip(1)
         .map(|l| l.split(',').nth(1).unwrap().parse().unwrap())
         .collect();
-    assert!(xs.len() >= 80, "8 s at 10 Hz: {} poses", xs.len());
+    assert!(xs.len() >= 40, "4 s at 10 Hz: {} poses", xs.len());
+    // Every answer was taken in time: the premise of what follows.
+    let summary = std::fs::read_to_string(out.join("summary.toml")).unwrap();
+    assert_eq!(
+        field(&summary, "late_commands"),
+        (xs.len() - answered.len()).to_string(),
+        "{summary}"
+    );
     let at = |frame: u64| xs[frame as usize - 1];
-    // Held between answers, the robot drove on at 0.5 m/s: about 1.8 m by
-    // frame 41. Had the base stopped on every unanswered frame, it would
-    // have crept (one frame of acceleration in four).
+    // Held between answers, the robot drove on at 0.5 m/s: about 0.9 m by
+    // frame 21. Had the base stopped on every unanswered frame, it would
+    // have crept (one frame of acceleration in four, about 0.1 m).
     let driven = at(LAST_ANSWERED) - at(1);
-    assert!(driven > 1.2, "drove {driven:.2} m on held commands");
-    // Silent after frame 41: at most 0.8 s more at 0.5 m/s plus braking,
-    // then standing still for the rest of the run.
+    assert!(driven > 0.6, "drove {driven:.2} m on held commands");
+    // Silent after frame 21: 0.8 s more at 0.5 m/s and then braking, then
+    // standing still for the rest of the run.
     let coasted = xs[xs.len() - 1] - at(LAST_ANSWERED);
     assert!(
-        (0.2..0.6).contains(&coasted),
+        (0.25..0.6).contains(&coasted),
         "moved {coasted:.2} m after the last command"
     );
-    let tail = &xs[60..];
+    let tail = &xs[33..];
     assert!(
         tail.iter().all(|&x| x == tail[0]),
         "stopped once the last command expired: {tail:?}"

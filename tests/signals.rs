@@ -1,7 +1,8 @@
 //! Signals, as an operator and systemd send them, to every stage, the bridge
 //! and the recorder as real processes: a freeze (SIGSTOP, then SIGCONT, as
-//! Ctrl-Z and `fg` do) never ends one, and it goes on publishing its health
-//! afterwards; SIGTERM and SIGINT end each cleanly (exit status 0).
+//! a debugger or `kill -STOP` does) never ends one, and it goes on
+//! publishing its health afterwards; SIGTERM (with the SIGCONT systemd sends
+//! after it) and SIGINT end each cleanly (exit status 0).
 
 use farsight_interfaces::msg::StageHealth;
 use farsight_interfaces::topics;
@@ -101,15 +102,28 @@ fn a_frozen_stage_resumes_and_sigterm_or_sigint_ends_each_cleanly() {
             r.proc.stderr_so_far()
         );
     }
-    // Half get SIGTERM (systemd), half SIGINT (Ctrl-C): all end cleanly.
+    // Each ends cleanly on the way it is asked to stop:
+    // - SIGTERM and at once SIGCONT, as `systemctl stop` sends them;
+    // - SIGTERM to a frozen stage, then SIGCONT: both are pending when it
+    //   runs again, and the kernel hands over SIGTERM first, so SIGCONT is
+    //   the last signal iceoryx2 recorded (it kept only that one, and the
+    //   stop was lost);
+    // - SIGINT (Ctrl-C).
     for (i, r) in all.iter().enumerate() {
-        r.proc.signal(if i % 2 == 0 { "TERM" } else { "INT" });
+        let sequence: &[&str] = match i % 3 {
+            0 => &["TERM", "CONT"],
+            1 => &["STOP", "TERM", "CONT"],
+            _ => &["INT"],
+        };
+        for s in sequence {
+            r.proc.signal(s);
+        }
     }
     for r in all.iter_mut() {
         assert_eq!(
             r.proc.wait_exit(Duration::from_secs(30)),
             Some(0),
-            "{} after SIGTERM/SIGINT:\n{}",
+            "{} after its stop signals:\n{}",
             r.proc.name,
             r.proc.stderr_so_far()
         );

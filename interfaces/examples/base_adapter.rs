@@ -4,7 +4,7 @@
 //! while it is within its time-to-live, zero once it has expired, so the base
 //! stops by itself when the command writer dies or freezes.
 //!
-//! Here the "motors" are a line on stdout per change. Replace `send_to_motors`
+//! Here the "motors" are a line on stdout per motor tick. Replace `send_to_motors`
 //! with your platform's call (a CAN frame, a serial packet, a ROS 2 twist)
 //! and keep the rest.
 //!
@@ -35,7 +35,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut gate = CommandGate::new(max_ttl_s);
     // The driver's own monotonic clock: never the graph's stamps.
     let t0 = Instant::now();
-    let mut sent = None;
     ipc::wait_loop(
         &[commands.listener()],
         Some(Duration::from_secs_f64(1.0 / rate_hz)),
@@ -44,11 +43,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             if let Ok(Some(cmd)) = commands.latest() {
                 gate.receive(cmd, now_s);
             }
-            let out = gate.command(now_s);
-            if sent != Some(out) {
-                send_to_motors(out.0, out.1);
-                sent = Some(out);
-            }
+            // Every tick, changed or not: platforms with a heartbeat
+            // timeout expect a steady stream.
+            let (v, w) = gate.command(now_s);
+            send_to_motors(v, w);
             ControlFlow::Continue(())
         },
     )?;

@@ -459,7 +459,9 @@ code_enum! {
 /// A velocity command for the platform.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend, Serialize, Deserialize)]
 #[repr(C)]
-#[type_name("farsight::VelocityCommand")]
+// v2: `ttl_ms` added; the name keeps an old process from reading the new
+// layout (same size, the old padding) as its own.
+#[type_name("farsight::VelocityCommand.v2")]
 pub struct VelocityCommand {
     pub stamp: Stamp,
     pub linear_mps: f32,

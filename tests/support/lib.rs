@@ -422,7 +422,6 @@ impl Proc {
         }
     }
 
-    /// SIGTERM, then wait for a clean exit; returns the exit code.
     /// Sends signal `name` (`STOP`, `CONT`, `INT`, `TERM`, ...) with `kill`.
     pub fn signal(&self, name: &str) {
         let pid = self.pid();
@@ -435,6 +434,7 @@ impl Proc {
         assert!(ok, "kill -{name} {pid} ({})", self.name);
     }
 
+    /// SIGTERM, then wait for a clean exit; returns the exit code.
     pub fn terminate(&mut self, timeout: Duration) -> Option<i32> {
         let pid = self.pid();
         if pid == 0 {

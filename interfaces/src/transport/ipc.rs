@@ -140,6 +140,7 @@ impl Bus {
             node,
             name: node_name.to_string(),
         };
+        watch_termination_signals(&bus.node);
         let removed = bus.cleanup_dead_nodes();
         if removed > 0 {
             tracing::info!(removed, "cleaned up dead iceoryx2 nodes");
@@ -155,10 +156,11 @@ impl Bus {
     /// in [`wait_loop`]. A wait cut short for another reason (SIGCONT after
     /// a freeze) is not a request to stop.
     pub fn termination_requested(&self) -> bool {
-        matches!(
-            self.node.wait(Duration::ZERO),
-            Err(iceoryx2::node::NodeWaitFailure::TerminationRequest)
-        )
+        termination_requested()
+            || matches!(
+                self.node.wait(Duration::ZERO),
+                Err(iceoryx2::node::NodeWaitFailure::TerminationRequest)
+            )
     }
 
     pub fn name(&self) -> &str {
@@ -668,7 +670,7 @@ pub fn wait_loop(
         ),
         None => None,
     };
-    // A stopped process (SIGSTOP, Ctrl-Z) that is continued sees its wait
+    // A stopped process (SIGSTOP) that is continued sees its wait
     // interrupted (EINTR), which iceoryx2 reports as `Interrupt` like SIGINT.
     // Only a recorded SIGTERM/SIGINT ends the loop: the next call returns
     // `TerminationRequest` at once if one arrived, and otherwise waits on.
@@ -676,6 +678,11 @@ pub fn wait_loop(
     let mut process = |id: WaitSetAttachmentId<ipc::Service>| {
         if wedge_at.is_some_and(|t| std::time::Instant::now() >= t) {
             wedge();
+        }
+        // SIGTERM that arrived while a step ran, then SIGCONT: iceoryx2
+        // only remembers the last signal, so the flag decides.
+        if termination_requested() {
+            return CallbackProgression::Stop;
         }
         let mut wake = None;
         for (i, (listener, guard)) in inputs.iter().zip(&guards).enumerate() {
@@ -698,12 +705,49 @@ pub fn wait_loop(
         let result = waitset
             .wait_and_process(&mut process)
             .map_err(|e| ipc_err("waitset wait", "-", e))?;
+        if termination_requested() {
+            return Ok(LoopExit::Terminated);
+        }
         match result {
             WaitSetRunResult::TerminationRequest => return Ok(LoopExit::Terminated),
             WaitSetRunResult::Interrupt => continue,
             _ => return Ok(LoopExit::Stopped),
         }
     }
+}
+
+/// Set once SIGTERM or SIGINT has arrived; never cleared.
+static TERMINATION: std::sync::OnceLock<std::sync::Arc<std::sync::atomic::AtomicBool>> =
+    std::sync::OnceLock::new();
+
+/// Whether SIGTERM or SIGINT has arrived since the bus was opened.
+///
+/// iceoryx2 records signals in one slot that the next signal overwrites and
+/// that reading clears, and it catches SIGCONT too. systemd sends SIGCONT
+/// right after SIGTERM (so a stopped process can act on it), which left the
+/// slot saying SIGCONT and the stop request lost. This flag, set by
+/// signal-hook's handler (which then calls iceoryx2's), is not lost.
+pub fn termination_requested() -> bool {
+    TERMINATION
+        .get()
+        .is_some_and(|f| f.load(std::sync::atomic::Ordering::SeqCst))
+}
+
+/// Installs the flag's handlers once per process, after iceoryx2's own:
+/// signal-hook chains to the handler it finds, while iceoryx2 installs its
+/// handlers lazily and would replace anything installed before them.
+fn watch_termination_signals(node: &Node<ipc::Service>) {
+    TERMINATION.get_or_init(|| {
+        // Makes iceoryx2 install its handlers now.
+        let _ = node.wait(Duration::ZERO);
+        let flag = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+            if let Err(e) = signal_hook::flag::register(signal, flag.clone()) {
+                tracing::warn!("cannot watch signal {signal}: {e}");
+            }
+        }
+        flag
+    });
 }
 
 /// Test hook (`tests/watchdog.rs`): with `FARSIGHT_TEST_WEDGE_AFTER_S=N` in

@@ -352,6 +352,13 @@ fn run() -> Result<()> {
                     let waiting_since = Instant::now();
                     let mut done = false;
                     while !done && waiting_since.elapsed() < *timeout {
+                        // Waiting on a slow consumer is not a hang: keep
+                        // reporting (and pinging the watchdog), and stop
+                        // waiting when asked to stop.
+                        health.tick(clock.now_ns());
+                        if bus.termination_requested() {
+                            break;
+                        }
                         match consumer.latest() {
                             Ok(Some(s)) if s.header().stamp.frame_seq >= seq[camera] => done = true,
                             Ok(_) => std::thread::sleep(Duration::from_millis(1)),

@@ -94,15 +94,15 @@ impl Validate for ServoStageConfig {
             self.subgoal_deadline_s,
             "a positive time in seconds",
         )?;
-        // A TTL shorter than the output period would stop the base between
-        // two commands of a healthy servo.
+        // A TTL of about one output period would stop the base between two
+        // commands of a healthy servo at the least jitter.
         ConfigError::check(
             self.command_ttl_s.is_finite()
-                && self.command_ttl_s * self.output_rate_hz >= 1.0
+                && self.command_ttl_s * self.output_rate_hz >= 2.0
                 && self.command_ttl_s <= 60.0,
             "command_ttl_s",
             self.command_ttl_s,
-            "seconds, at least one output period (1 / output_rate_hz) and at most 60",
+            "seconds, at least two output periods (2 / output_rate_hz) and at most 60",
         )?;
         ConfigError::check(
             self.health_rate_hz > 0.0,

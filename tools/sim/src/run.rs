@@ -348,6 +348,11 @@ pub fn run(a: RunArgs) -> Result<Summary> {
         .with_context(|| format!("creating {}", trace_path.display()))?;
     let dt = 1.0 / a.rate_hz;
     let mut late = 0u32;
+    anyhow::ensure!(
+        a.base_max_ttl_s.is_finite() && a.base_max_ttl_s > 0.0,
+        "--base-max-ttl-s {}: expected a positive time in seconds (the base would never move)",
+        a.base_max_ttl_s
+    );
     let mut base = farsight_interfaces::base::CommandGate::new(a.base_max_ttl_s);
     anyhow::ensure!(
         a.pose_noise_m >= 0.0 && a.yaw_noise_deg >= 0.0,

@@ -246,7 +246,9 @@ struct TestBinary {
 fn json_str<'a>(line: &'a str, key: &str) -> Option<&'a str> {
     let start = line.find(&format!("\"{key}\":\""))? + key.len() + 4;
     let len = line[start..].find('"')?;
-    Some(&line[start..start + len])
+    let value = &line[start..start + len];
+    // An escaped quote would end the value early: refuse rather than guess.
+    (!value.contains('\\')).then_some(value)
 }
 
 /// Builds every test target and lists the executables, so each can be run
@@ -279,11 +281,17 @@ fn build_test_binaries() -> Result<Vec<TestBinary>> {
         {
             continue;
         }
+        if !line.contains("\"executable\":\"") {
+            continue;
+        }
         let (Some(exe), Some(manifest)) = (
             json_str(line, "executable"),
             json_str(line, "manifest_path"),
         ) else {
-            continue;
+            // Never skip a test binary silently.
+            return Err(format!(
+                "cannot read a test executable from cargo's output: {line}"
+            ));
         };
         let package_dir = Path::new(manifest)
             .parent()
