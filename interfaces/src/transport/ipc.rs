@@ -672,8 +672,8 @@ pub fn wait_loop(
     };
     // A stopped process (SIGSTOP) that is continued sees its wait
     // interrupted (EINTR), which iceoryx2 reports as `Interrupt` like SIGINT.
-    // Only a recorded SIGTERM/SIGINT ends the loop: the next call returns
-    // `TerminationRequest` at once if one arrived, and otherwise waits on.
+    // Only SIGTERM/SIGINT end the loop, as seen by the sticky flag
+    // ([`termination_requested`]) on every wake and after every wait.
     let wedge_at = test_hook_wedge_at();
     let mut process = |id: WaitSetAttachmentId<ipc::Service>| {
         if wedge_at.is_some_and(|t| std::time::Instant::now() >= t) {
