@@ -107,7 +107,7 @@ mod graph {
             .subscriber(&topics::health("velocity-servoing"))
             .unwrap();
         let publish_nav_inputs = || {
-            pose.publish(&Pose::default()).unwrap();
+            pose.publish(&farsight_tests::pose_now()).unwrap();
             goal.publish(&NavGoal {
                 kind: GoalKind::LOCAL,
                 x_m: 200.0,
@@ -120,18 +120,20 @@ mod graph {
         let ingest_cfg = ns.write(
             "camera-ingest.toml",
             &format!(
-                "[[cameras]]\nfolder = {:?}\nrate_hz = 8.0\nloops = 0\n[cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\nxyz_m = [0.0, 0.0, 1.5]\n",
+                "[[cameras]]\nfolder = {:?}\nrate_hz = 8.0\nloops = 0\ncapture_time = \"publish\"\n[cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\nxyz_m = [0.0, 0.0, 1.5]\n",
                 repo_root().join("../shared/data/orfd/image_data").display().to_string()
             ),
         );
-        let deadline_s = 0.5;
+        // Staleness is judged on capture time: the deadline covers the
+        // pipeline's latency too (TwinLiteNet on a busy CPU).
+        let deadline_s = 1.0;
         let servo_cfg = ns.write(
             "velocity-servoing.toml",
             &format!("output_rate_hz = 20.0\nsubgoal_deadline_s = {deadline_s}\n"),
         );
         let subgoal_cfg = ns.write(
             "subgoal-selection.toml",
-            "method = \"povnav\"\ncamera = \"front\"\nrobot_width_m = 1.0\n",
+            "method = \"povnav\"\ncamera = \"front\"\nrobot_width_m = 1.0\ninput_deadline_s = 2.0\n",
         );
         let servo = ns.start_stage(
             "farsight-velocity-servoing",
@@ -153,7 +155,7 @@ mod graph {
             while Instant::now() < end {
                 // Like a localisation stack and an operator tool would: pose as a
                 // stream, the goal once but handed to stages that join later.
-                pose.publish(&Pose::default()).unwrap();
+                pose.publish(&farsight_tests::pose_now()).unwrap();
                 goal.deliver_history().unwrap();
                 if let Some(c) = cmds.latest().unwrap() {
                     if pred(&c) {
@@ -224,7 +226,7 @@ mod graph {
         let h = servo_health.latest().unwrap().expect("servo health");
         assert_eq!(h.state, HealthState::DEGRADED);
         assert!(
-            h.reason.as_str().starts_with("subgoal is"),
+            h.reason.as_str().starts_with("nav/subgoal is"),
             "{:?}",
             h.reason
         );
@@ -275,16 +277,13 @@ mod bins {
             bus.slice_publisher(&topics::affordance_heatmap(&c.name), w * h * 4)
                 .unwrap()
         });
+        // Capture times are 0.1 s per sequence number.
+        let stamp = |seq: u64| Stamp::new(seq, seq * 100_000_000);
         let publish = |k: usize, cam: &Camera, heat: &dyn Fn(usize) -> f32, seq: u64| {
-            infos[k].publish(&cam.to_info(Stamp::new(seq, 0))).unwrap();
+            infos[k].publish(&cam.to_info(stamp(seq))).unwrap();
             let values: Vec<f32> = (0..w * h).map(|i| heat(i % w)).collect();
-            let header = ImageHeader::packed(
-                Stamp::new(seq, 0),
-                cam.id,
-                w as u32,
-                h as u32,
-                PixelEncoding::F32,
-            );
+            let header =
+                ImageHeader::packed(stamp(seq), cam.id, w as u32, h as u32, PixelEncoding::F32);
             heats[k]
                 .publish_copy(header, bytemuck::cast_slice(&values))
                 .unwrap();
@@ -294,19 +293,19 @@ mod bins {
         std::thread::sleep(Duration::from_millis(100));
         // Rear: hot everywhere it looks.
         publish(1, &rear, &|_| 1.0, 2);
-        let end = Instant::now() + Duration::from_secs(10);
-        let mut last = None;
-        while Instant::now() < end {
-            if let Some(b) = out.latest().unwrap() {
-                if b.stamp.frame_seq == 2 {
-                    last = Some(b);
-                    break;
+        let bins_of = |seq: u64| {
+            let end = Instant::now() + Duration::from_secs(10);
+            while Instant::now() < end {
+                if let Some(b) = out.latest().unwrap() {
+                    if b.stamp.frame_seq == seq {
+                        return b;
+                    }
                 }
+                std::thread::sleep(Duration::from_millis(10));
             }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        let b = last
-            .unwrap_or_else(|| panic!("no bins after both cameras:\n{}", stage.stderr_so_far()));
+            panic!("no bins of frame {seq}:\n{}", stage.stderr_so_far());
+        };
+        let b = bins_of(2);
         let g = farsight_bin_projection_geometry(b.bin_width_rad as f64);
         let bin = |deg: f64| g(deg.to_radians());
         assert_eq!(b.scores.len(), 36);
@@ -324,6 +323,35 @@ mod bins {
         assert_eq!(o[bin(0.0)], 1);
         let total: f32 = s.iter().sum();
         assert!((total - 1.0).abs() < 1e-4, "normalised: {total}");
+
+        // The rear camera dies; the front one goes on. Within the 1 s input
+        // deadline (capture time) its bins stay; past it they drop out and
+        // the stage says so, but the bins keep coming: degraded, not stopped.
+        let health = bus.subscriber(&topics::health("bin-projection")).unwrap();
+        let front_only = |u: usize| if u >= 48 { 1.0 } else { 0.2 };
+        for seq in 3..=12 {
+            publish(0, &front, &front_only, seq);
+            let b = bins_of(seq);
+            assert_eq!(b.observed.as_slice()[bin(179.0)], 1, "frame {seq}");
+        }
+        for seq in 13..=16 {
+            publish(0, &front, &front_only, seq);
+            let b = bins_of(seq);
+            let o = b.observed.as_slice();
+            assert_eq!((o[bin(179.0)], o[bin(0.0)]), (0, 1), "frame {seq}");
+        }
+        let h = farsight_tests::wait_health(&health, Duration::from_secs(5), "degraded", |h| {
+            h.state == HealthState::DEGRADED
+        });
+        assert!(
+            h.reason.as_str().starts_with("rear is 1.")
+                && h.reason.as_str().ends_with("s old (deadline 1 s)"),
+            "{:?}",
+            h.reason
+        );
+        // It comes back: seen behind again.
+        publish(1, &rear, &|_| 1.0, 17);
+        assert_eq!(bins_of(17).observed.as_slice()[bin(179.0)], 1);
     }
 
     /// Bin index of a bearing for bins of `width` radians starting at -pi.
@@ -371,12 +399,20 @@ mod path_tracking {
             camera_id: 0,
             points: FixedVec::from_slice(&[[10.0, 0.0], [10.0, 1.0], [7.0, 1.0]]).unwrap(),
         };
-        let wait_for = |what: &str, pred: &dyn Fn(&VelocityCommand) -> bool, feed: bool| {
+        // `feed`: how old the published path's capture is (the pose is
+        // always fresh), or None to stop publishing both.
+        let wait_for = |what: &str, pred: &dyn Fn(&VelocityCommand) -> bool, feed: Option<u64>| {
             let end = Instant::now() + Duration::from_secs(10);
             while Instant::now() < end {
-                if feed {
-                    poses.publish(&pose).unwrap();
-                    paths.publish(&path).unwrap();
+                if let Some(age_ns) = feed {
+                    let now = farsight_tests::stamp_now(7);
+                    poses.publish(&Pose { stamp: now, ..pose }).unwrap();
+                    let captured = Stamp::new(7, now.capture_time_ns - age_ns);
+                    // (Not `Path { stamp, ..path }`: that trips a rustc MIR
+                    // bug with the const-generic FixedVec inside.)
+                    let mut p = path;
+                    p.stamp = captured;
+                    paths.publish(&p).unwrap();
                 }
                 if let Some(c) = cmds.latest().unwrap() {
                     if pred(&c) {
@@ -392,26 +428,33 @@ mod path_tracking {
             );
         };
         // The carrot is on the westward leg, ahead-left: drive and turn left.
-        let c = wait_for(
-            "turning left along the path",
-            &|c| {
-                c.reason == CommandReason::TRACKING && c.linear_mps > 0.05 && c.angular_radps > 0.3
-            },
-            true,
-        );
+        let tracking = |c: &VelocityCommand| {
+            c.reason == CommandReason::TRACKING && c.linear_mps > 0.05 && c.angular_radps > 0.3
+        };
+        let c = wait_for("turning left along the path", &tracking, Some(0));
         assert_eq!(
             c.stamp.frame_seq, 7,
             "the command names the path it came from"
         );
-        // The planner stops: zero within the deadline, and health says why.
+        // A planner replanning on a map whose source died: the path keeps
+        // arriving, but from a capture older than the deadline. Zero.
+        let stale = |c: &VelocityCommand| c.reason == CommandReason::STALE_INPUT;
         let c = wait_for(
-            "stopping on a stale path",
-            &|c| c.reason == CommandReason::STALE_INPUT,
-            false,
+            "stopping on a path from old data",
+            &stale,
+            Some(400_000_000),
         );
         assert_eq!((c.linear_mps, c.angular_radps), (0.0, 0.0));
-        std::thread::sleep(Duration::from_millis(1100)); // one health period
-        let h = health.latest().unwrap().expect("servo health");
-        assert!(h.reason.as_str().starts_with("path is"), "{:?}", h.reason);
+        let named = |_: &VelocityCommand| {
+            health.latest().unwrap().is_some_and(|h| {
+                h.state == HealthState::DEGRADED
+                    && h.reason.as_str().starts_with("nav/path/planned is 0.4")
+            })
+        };
+        wait_for("health naming the old path", &named, Some(400_000_000));
+        wait_for("tracking again on fresh data", &tracking, Some(0));
+        // The planner stops: zero within the deadline, and health says why.
+        let c = wait_for("stopping on a stale path", &stale, None);
+        assert_eq!((c.linear_mps, c.angular_radps), (0.0, 0.0));
     }
 }

@@ -205,7 +205,7 @@ mod graph {
     fn near_field(half: i64, lethal: impl Fn(i64, i64) -> bool) -> (CostmapHeader, Vec<CostCell>) {
         let side = 2 * half + 1;
         let header = CostmapHeader {
-            stamp: Stamp::new(1, 0),
+            stamp: farsight_tests::stamp_now(1),
             layer: CostmapLayer::LOCAL,
             width: side as u32,
             height: side as u32,
@@ -226,13 +226,21 @@ mod graph {
         (header, cells)
     }
 
+    /// A costmap header stamped now: a near-field sensor's map as it goes out.
+    fn restamped(header: CostmapHeader) -> CostmapHeader {
+        CostmapHeader {
+            stamp: farsight_tests::stamp_now(header.stamp.frame_seq),
+            ..header
+        }
+    }
+
     /// Localisation and the operator, as the planners see them: the robot at
     /// the origin facing east, the goal 20 m ahead.
     fn robot_at_origin_goal_ahead(
         pose: &farsight_interfaces::transport::ipc::Publisher<Pose>,
         goal: &farsight_interfaces::transport::ipc::Publisher<NavGoal>,
     ) {
-        pose.publish(&Pose::default()).unwrap();
+        pose.publish(&farsight_tests::pose_now()).unwrap();
         goal.publish(&NavGoal {
             kind: GoalKind::LOCAL,
             x_m: 20.0,
@@ -282,7 +290,7 @@ mod graph {
         let mut around = None;
         while Instant::now() < end && around.is_none() {
             robot_at_origin_goal_ahead(&pose, &goal);
-            local.publish_copy(header, &cells).unwrap();
+            local.publish_copy(restamped(header), &cells).unwrap();
             if let Some(p) = planned.latest().unwrap() {
                 let pts = p.points.as_slice();
                 // Around the wall: some point beyond |y| = 6 before x = 8.
@@ -324,7 +332,7 @@ mod graph {
         // The servo follows the path: forward and turning toward the detour.
         let end = Instant::now() + Duration::from_secs(10);
         loop {
-            pose.publish(&Pose::default()).unwrap();
+            pose.publish(&farsight_tests::pose_now()).unwrap();
             if let Some(c) = cmds.latest().unwrap() {
                 if c.reason == CommandReason::TRACKING
                     && c.linear_mps > 0.0
@@ -383,11 +391,16 @@ mod graph {
         let mut seq = 0;
         loop {
             seq += 1;
-            pose.publish(&robot).unwrap();
-            info.publish(&cam.to_info(Stamp::new(seq, 0))).unwrap();
+            pose.publish(&Pose {
+                stamp: farsight_tests::stamp_now(seq),
+                ..robot
+            })
+            .unwrap();
+            info.publish(&cam.to_info(farsight_tests::stamp_now(seq)))
+                .unwrap();
             tensor
                 .publish_copy(
-                    TensorHeader::new(Stamp::new(seq, 0), 0, &[8, 3, 2, 3]),
+                    TensorHeader::new(farsight_tests::stamp_now(seq), 0, &[8, 3, 2, 3]),
                     &logits,
                 )
                 .unwrap();
@@ -478,7 +491,7 @@ mod graph {
             while Instant::now() < end {
                 robot_at_origin_goal_ahead(&pose, &goal);
                 let (header, cells) = ground(rock);
-                local.publish_copy(header, &cells).unwrap();
+                local.publish_copy(restamped(header), &cells).unwrap();
                 if let Some(p) = planned.latest().unwrap() {
                     if want(p.points.as_slice()) {
                         return p;
@@ -556,11 +569,18 @@ mod graph {
             .collect();
         let end = Instant::now() + Duration::from_secs(15);
         loop {
-            pose.publish(&Pose::default()).unwrap();
-            info.publish(&cam.to_info(Stamp::new(1, 0))).unwrap();
+            pose.publish(&farsight_tests::pose_now()).unwrap();
+            info.publish(&cam.to_info(farsight_tests::stamp_now(1)))
+                .unwrap();
             depth
                 .publish_copy(
-                    ImageHeader::packed(Stamp::new(1, 0), 0, 80, 60, PixelEncoding::F32),
+                    ImageHeader::packed(
+                        farsight_tests::stamp_now(1),
+                        0,
+                        80,
+                        60,
+                        PixelEncoding::F32,
+                    ),
                     bytemuck::cast_slice(&values),
                 )
                 .unwrap();
@@ -642,10 +662,16 @@ mod graph {
             let end = Instant::now() + Duration::from_secs(15);
             loop {
                 robot_at_origin_goal_ahead(&pose, &goal);
-                fused.publish_copy(header, &cells).unwrap();
+                fused.publish_copy(restamped(header), &cells).unwrap();
                 image
                     .publish_copy(
-                        ImageHeader::packed(Stamp::new(1, 0), 0, 16, 16, PixelEncoding::RGB8),
+                        ImageHeader::packed(
+                            farsight_tests::stamp_now(1),
+                            0,
+                            16,
+                            16,
+                            PixelEncoding::RGB8,
+                        ),
                         &pixels,
                     )
                     .unwrap();
@@ -686,6 +712,145 @@ mod graph {
         );
     }
 
+    /// costmap-fusion as a process, with the test's ends of its topics:
+    /// `costmap/local` 21x21 cells, `bins/polar` 32 x 3 bins.
+    struct FusionRig {
+        fused: farsight_interfaces::transport::ipc::SliceSubscriber<CostmapHeader, CostCell>,
+        health: farsight_interfaces::transport::ipc::Subscriber<StageHealth>,
+        fusion: farsight_tests::Proc,
+        pose: farsight_interfaces::transport::ipc::Publisher<Pose>,
+        local: farsight_interfaces::transport::ipc::SlicePublisher<CostmapHeader, CostCell>,
+        polar: farsight_interfaces::transport::ipc::SlicePublisher<PolarBinsHeader, PolarCell>,
+    }
+
+    impl FusionRig {
+        fn start(
+            ns: &Namespace,
+            bus: &farsight_interfaces::transport::ipc::Bus,
+            cfg: &std::path::Path,
+        ) -> Self {
+            Self {
+                fused: bus.slice_subscriber(&topics::costmap("fused")).unwrap(),
+                health: bus.subscriber(&topics::health("costmap-fusion")).unwrap(),
+                fusion: ns.start_stage("farsight-costmap-fusion", "costmap-fusion", cfg),
+                pose: bus.publisher(&topics::pose()).unwrap(),
+                local: bus
+                    .slice_publisher(&topics::costmap("local"), 21 * 21)
+                    .unwrap(),
+                polar: bus.slice_publisher(&topics::polar_bins(), 96).unwrap(),
+            }
+        }
+    }
+
+    /// FITAM's far field is optional: stale on capture time, it leaves the
+    /// fused map (the "no far field" map) while the near field goes on. The
+    /// near field is required: stale, the maps stop, and their last stamp
+    /// ages for the stages downstream.
+    #[test]
+    fn a_stale_far_field_leaves_the_fused_map_and_a_stale_near_field_stops_it() {
+        use farsight_interfaces::fixed::FixedVec;
+        let ns = Namespace::new("fusionstale");
+        let bus = ns.bus("fusion-stale-test");
+        let cfg = ns.write(
+            "costmap-fusion.toml",
+            "width_cells = 121\nheight_cells = 121\npublish_rate_hz = 20.0\ninput_deadline_s = 0.5\n",
+        );
+        let FusionRig {
+            fused,
+            health,
+            fusion,
+            pose,
+            local,
+            polar,
+        } = FusionRig::start(&ns, &bus, &cfg);
+        let (header, cells) = near_field(10, |_, _| false);
+        // Every heading, every range: class 2 (0.235 s/m), certain.
+        let bins_header = PolarBinsHeader {
+            heading_bins: 32,
+            first_heading_start_rad: -std::f32::consts::PI,
+            heading_width_rad: std::f32::consts::TAU / 32.0,
+            range_edges_m: FixedVec::from_slice(&[25.0, 50.0, 75.0, 100.0]).unwrap(),
+            ..Default::default()
+        };
+        let bins = vec![
+            PolarCell {
+                cost_s_per_m: 1.0 / 4.25,
+                variance: 0.01,
+                class_id: 2,
+                probability: 0.99
+            };
+            96
+        ];
+        // Feeds pose, and optionally near and far field, until the fused
+        // cell 40 m ahead and the stage's health satisfy `want`.
+        let mut seq = 0;
+        let mut report: Option<StageHealth> = None;
+        type Want<'a> = &'a dyn Fn(f32, &StageHealth) -> bool;
+        let mut feed_until = |near: bool, far: bool, what: &str, want: Want| {
+            let end = Instant::now() + Duration::from_secs(10);
+            loop {
+                seq += 1;
+                pose.publish(&farsight_tests::pose_now()).unwrap();
+                if near {
+                    local.publish_copy(restamped(header), &cells).unwrap();
+                }
+                if far {
+                    let mut h = bins_header;
+                    h.stamp = farsight_tests::stamp_now(seq);
+                    polar.publish_copy(h, &bins).unwrap();
+                }
+                std::thread::sleep(Duration::from_millis(50));
+                // (`latest` gives each message once: keep the last report.)
+                if let Some(h) = health.latest().unwrap() {
+                    report = Some(h);
+                }
+                if let (Some(f), Some(report)) = (fused.latest().unwrap(), &report) {
+                    let h = *f.header();
+                    let ahead = f.data()[h.cell_index(40.0, 0.0).unwrap()].cost_s_per_m;
+                    if want(ahead, report) {
+                        return *f.header();
+                    }
+                }
+                assert!(
+                    Instant::now() < end,
+                    "{what}: last {report:?}\n{}",
+                    fusion.stderr_so_far()
+                );
+            }
+        };
+        let far_field = |c: f32, _: &StageHealth| (c - 1.0 / 4.25).abs() < 0.02;
+        feed_until(true, true, "the far field 40 m ahead", &far_field);
+        // The far-field stage dies: the map goes on without it (unknown,
+        // 1 s/m), and health names it.
+        feed_until(true, false, "the far field left out", &|c, h| {
+            c == 1.0
+                && h.state == HealthState::DEGRADED
+                && h.reason.as_str().starts_with("bins/polar is")
+                && h.reason.as_str().ends_with("(deadline 0.5 s)")
+        });
+        // It comes back.
+        feed_until(true, true, "the far field again", &far_field);
+        // The near field dies: no more maps, though poses still arrive.
+        let last = feed_until(false, true, "a map", &|_, _| true);
+        std::thread::sleep(Duration::from_millis(1000));
+        for k in 0..10 {
+            pose.publish(&farsight_tests::pose_now()).unwrap();
+            let mut h = bins_header;
+            h.stamp = farsight_tests::stamp_now(1000 + k);
+            polar.publish_copy(h, &bins).unwrap();
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let newest = *fused.latest().unwrap().expect("a fused map").header();
+        assert!(
+            newest.stamp.capture_time_ns <= last.stamp.capture_time_ns + 600_000_000,
+            "a map was stamped after the near field died: {newest:?} vs {last:?}"
+        );
+        let h = farsight_tests::wait_health(&health, Duration::from_secs(5), "stale", |h| {
+            h.reason.as_str().starts_with("near field is")
+        });
+        assert_eq!(h.state, HealthState::DEGRADED);
+    }
+
     /// Malformed near-field costmaps and polar bins from a peer are dropped,
     /// counted and named in health; the stage keeps fusing what is valid.
     #[test]
@@ -697,15 +862,15 @@ mod graph {
             "costmap-fusion.toml",
             "width_cells = 41\nheight_cells = 41\npublish_rate_hz = 20.0\n",
         );
-        let fused = bus.slice_subscriber(&topics::costmap("fused")).unwrap();
-        let health = bus.subscriber(&topics::health("costmap-fusion")).unwrap();
-        let fusion = ns.start_stage("farsight-costmap-fusion", "costmap-fusion", &cfg);
-        let pose = bus.publisher(&topics::pose()).unwrap();
-        let local = bus
-            .slice_publisher(&topics::costmap("local"), 21 * 21)
-            .unwrap();
-        let polar = bus.slice_publisher(&topics::polar_bins(), 96).unwrap();
-        pose.publish(&Pose::default()).unwrap();
+        let FusionRig {
+            fused,
+            health,
+            fusion,
+            pose,
+            local,
+            polar,
+        } = FusionRig::start(&ns, &bus, &cfg);
+        pose.publish(&farsight_tests::pose_now()).unwrap();
         std::thread::sleep(Duration::from_millis(100));
         // A header that promises more cells than it carries, and one with a
         // NaN origin.
@@ -741,8 +906,8 @@ mod graph {
         // Then a valid map: fused as usual.
         let end = Instant::now() + Duration::from_secs(10);
         loop {
-            pose.publish(&Pose::default()).unwrap();
-            local.publish_copy(header, &cells).unwrap();
+            pose.publish(&farsight_tests::pose_now()).unwrap();
+            local.publish_copy(restamped(header), &cells).unwrap();
             std::thread::sleep(Duration::from_millis(50));
             if let Some(f) = fused.latest().unwrap() {
                 let h = *f.header();

@@ -453,3 +453,18 @@ impl Drop for Proc {
         self.kill();
     }
 }
+
+/// A stamp captured now on the wall clock: what a camera or a localisation
+/// stack stamps, and what stages on the wall clock judge staleness by.
+pub fn stamp_now(frame_seq: u64) -> farsight_interfaces::msg::Stamp {
+    use farsight_interfaces::clock::Clock;
+    farsight_interfaces::msg::Stamp::new(frame_seq, farsight_interfaces::clock::WallClock.now_ns())
+}
+
+/// The robot at the origin facing +x, as a localisation stack reports it now.
+pub fn pose_now() -> farsight_interfaces::msg::Pose {
+    farsight_interfaces::msg::Pose {
+        stamp: stamp_now(0),
+        ..Default::default()
+    }
+}

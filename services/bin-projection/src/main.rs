@@ -10,6 +10,8 @@
 //! method = "lrn"                 # or "fitam"
 //! cameras = ["front"]            # reads perception/<camera>/heatmap (lrn) or
 //!                                # perception/<camera>/far_field (fitam), and camera/<camera>/info
+//! input_deadline_s = 1.0         # a camera whose newest capture is this much older than
+//!                                # the newest of any camera drops out of the bins
 //! health_rate_hz = 1.0
 //! [bins]                         # see farsight_bin_projection::LrnBinsConfig (Spot preset)
 //! bin_width_deg = 5.0
@@ -34,7 +36,9 @@ use farsight_interfaces::msg::{
 };
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
-use farsight_stage::{load_config, ConfigError, Health, StageArgs, Validate};
+use farsight_stage::{
+    load_config, ConfigError, Freshness, Health, InputId, Need, StageArgs, StageInputs, Validate,
+};
 use serde::{Deserialize, Serialize};
 use std::ops::ControlFlow;
 use std::time::Duration;
@@ -46,6 +50,7 @@ const STAGE: &str = "bin-projection";
 struct Config {
     method: String,
     cameras: Vec<String>,
+    input_deadline_s: f64,
     health_rate_hz: f64,
     bins: LrnBinsConfig,
     fitam: FitamBinsConfig,
@@ -56,6 +61,7 @@ impl Default for Config {
         Self {
             method: "lrn".into(),
             cameras: vec!["front".into()],
+            input_deadline_s: farsight_stage::inputs::DEFAULT_INPUT_DEADLINE_S,
             health_rate_hz: 1.0,
             bins: LrnBinsConfig::default(),
             fitam: FitamBinsConfig::default(),
@@ -87,6 +93,7 @@ impl Validate for Config {
             self.health_rate_hz,
             "a positive rate in Hz",
         )?;
+        farsight_stage::inputs::check_input_deadline(self.input_deadline_s)?;
         self.bins.validate()?;
         self.fitam.validate()
     }
@@ -122,10 +129,10 @@ fn run() -> Result<()> {
     let n = config.cameras.len();
     let mut cameras: Vec<Option<Camera>> = vec![None; n];
     let mut maps: Vec<Option<CameraBins>> = vec![None; n];
-    // Each camera's latest projection and when it arrived; a camera that stops
-    // sending drops out after a second instead of holding its bins forever.
-    let mut latest: Vec<Option<(u64, Projection)>> = vec![None; n];
-    const CAMERA_TIMEOUT_NS: u64 = 1_000_000_000;
+    // Each camera's latest projection; a camera that stops sending drops out
+    // instead of holding its bins forever.
+    let mut latest: Vec<Option<Projection>> = vec![None; n];
+    let (mut inputs, camera_in) = camera_inputs(&config);
     let mut bins = LrnBins::new(geometry, config.bins);
     let clock = WallClock;
     let listeners: Vec<_> = heatmaps.iter().map(|h| h.listener()).collect();
@@ -178,23 +185,21 @@ fn run() -> Result<()> {
                 &copied
             }
         };
-        latest[i] = Some((
-            now,
+        latest[i] = Some(
             maps[i]
                 .as_ref()
                 .expect("just built")
                 .project(values, config.bins.pixel_threshold()),
-        ));
-        let fresh: Vec<_> = latest
-            .iter()
-            .flatten()
-            .filter(|(t, _)| now.saturating_sub(*t) <= CAMERA_TIMEOUT_NS)
-            .map(|(_, p)| p.clone())
+        );
+        inputs.consumed(camera_in[i], h.stamp);
+        let fresh: Vec<_> = fresh_cameras(&inputs, &camera_in, &latest, &mut health)
+            .cloned()
             .collect();
+        let stamp = inputs.output_stamp().unwrap_or(h.stamp);
         let scores = bins.update(&fresh);
         let k = geometry.count.min(MAX_ANGULAR_BINS);
         let msg = AngularBins {
-            stamp: h.stamp,
+            stamp,
             first_bin_start_rad: geometry.start_rad() as f32,
             bin_width_rad: geometry.width_rad() as f32,
             scores: FixedVec::from_slice(
@@ -213,10 +218,7 @@ fn run() -> Result<()> {
             .unwrap_or_default(),
         };
         match out.publish(&msg) {
-            Ok(()) => {
-                health.set(HealthState::OK, "");
-                health.output(h.stamp, clock.now_ns());
-            }
+            Ok(()) => health.output(stamp, clock.now_ns()),
             Err(e) => health.dropped(&e),
         }
         ControlFlow::Continue(())
@@ -250,8 +252,8 @@ fn run_fitam(config: &Config) -> Result<()> {
     // Per camera: its slice -> heading bin table (for a slice count) and its
     // latest cells with their arrival time.
     let mut slice_bins: Vec<Option<(usize, Vec<Option<usize>>)>> = vec![None; n];
-    let mut latest: Vec<Option<(u64, Vec<PolarCell>)>> = vec![None; n];
-    const CAMERA_TIMEOUT_NS: u64 = 1_000_000_000;
+    let mut latest: Vec<Option<Vec<PolarCell>>> = vec![None; n];
+    let (mut inputs, camera_in) = camera_inputs(config);
     let header = PolarBinsHeader {
         stamp: Stamp::default(),
         heading_bins: cfg.heading_bins as u32,
@@ -305,34 +307,65 @@ fn run_fitam(config: &Config) -> Result<()> {
         }
         let bins = &slice_bins[i].as_ref().expect("just built").1;
         match fitam::polar_observation(s.data(), shape, bins, cfg) {
-            Ok(cells) => latest[i] = Some((now, cells)),
+            Ok(cells) => {
+                latest[i] = Some(cells);
+                inputs.consumed(camera_in[i], h.stamp);
+            }
             Err(e) => {
                 health.dropped(&format_args!("{}: {e}", config.cameras[i]));
                 return ControlFlow::Continue(());
             }
         }
-        let fresh: Vec<&[PolarCell]> = latest
-            .iter()
-            .flatten()
-            .filter(|(t, _)| now.saturating_sub(*t) <= CAMERA_TIMEOUT_NS)
-            .map(|(_, c)| c.as_slice())
+        let fresh: Vec<&[PolarCell]> = fresh_cameras(&inputs, &camera_in, &latest, &mut health)
+            .map(Vec::as_slice)
             .collect();
         let merged = fitam::merge_cameras(&fresh);
+        let stamp = inputs.output_stamp().unwrap_or(h.stamp);
         // (Functional update syntax here trips a rustc 1.95 MIR bug with the
         // const-generic FixedVec inside the header.)
         let mut stamped = header;
-        stamped.stamp = h.stamp;
+        stamped.stamp = stamp;
         match out.publish_copy(stamped, &merged) {
-            Ok(()) => {
-                health.set(HealthState::OK, "");
-                health.output(h.stamp, clock.now_ns());
-            }
+            Ok(()) => health.output(stamp, clock.now_ns()),
             Err(e) => health.dropped(&e),
         }
         ControlFlow::Continue(())
     })?;
     health.stopping(clock.now_ns());
     Ok(())
+}
+
+/// The cameras as one required group: the bins go on while any camera
+/// sends, and carry the newest capture among them.
+fn camera_inputs(config: &Config) -> (StageInputs, Vec<InputId>) {
+    let mut inputs = StageInputs::new(config.input_deadline_s);
+    let ids = config
+        .cameras
+        .iter()
+        .map(|c| inputs.add_to("cameras", c, Need::Required))
+        .collect();
+    (inputs, ids)
+}
+
+/// The cameras whose newest capture is within the deadline of the newest
+/// of any camera (an event-driven stage: time is its inputs'), with the
+/// stage's health saying which ones dropped out.
+fn fresh_cameras<'a, T>(
+    inputs: &'a StageInputs,
+    ids: &'a [InputId],
+    latest: &'a [Option<T>],
+    health: &mut Health,
+) -> impl Iterator<Item = &'a T> {
+    let now = inputs.newest_capture_ns().unwrap_or(0);
+    match inputs.check(now) {
+        Freshness::Fresh => health.set(HealthState::OK, ""),
+        other => health.set(HealthState::DEGRADED, other.reason()),
+    }
+    latest
+        .iter()
+        .zip(ids)
+        .filter(move |(_, &id)| inputs.is_fresh(id, now))
+        .filter_map(|(l, _)| l.as_ref())
 }
 
 /// Takes each camera's newest model; returns the cameras whose model changed

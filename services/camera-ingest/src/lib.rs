@@ -32,6 +32,11 @@
 //! speed = 1.0                # mcap: 2.0 plays twice as fast
 //! pace_by = ""               # as fast as a consumer takes frames: e.g. "perception/front/navigability"
 //! pace_timeout_s = 2.0       # with pace_by: publish the next frame anyway after this long
+//! capture_time = "source"    # a frame's stamp: "source" (the file name's, the recording's;
+//!                            # the moment of publishing when the source has none) or
+//!                            # "publish" (the moment it goes out: recorded frames played
+//!                            # into a graph on the wall clock, which would judge
+//!                            # their source times stale and never move)
 //!
 //! [cameras.model]            # see farsight_interfaces::camera::CameraConfig
 //! name = "front"
@@ -95,7 +100,32 @@ pub struct CameraEntry {
     pub pace_by: String,
     #[serde(default = "two")]
     pub pace_timeout_s: f64,
+    /// Which time a frame's stamp carries.
+    #[serde(default)]
+    pub capture_time: CaptureTime,
     pub model: CameraConfig,
+}
+
+/// The capture time a frame is stamped with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CaptureTime {
+    /// The source's own (file name, recording); the publishing moment when
+    /// the source has none.
+    #[default]
+    Source,
+    /// The moment the frame is published.
+    Publish,
+}
+
+impl CaptureTime {
+    /// The stamp's capture time for a frame with `source_ns` published at `now_ns`.
+    pub fn pick(self, source_ns: Option<u64>, now_ns: u64) -> u64 {
+        match self {
+            Self::Source => source_ns.unwrap_or(now_ns),
+            Self::Publish => now_ns,
+        }
+    }
 }
 
 fn folder() -> String {
@@ -137,6 +167,7 @@ impl Default for IngestConfig {
                 speed: 1.0,
                 pace_by: String::new(),
                 pace_timeout_s: 2.0,
+                capture_time: CaptureTime::Source,
                 model: CameraConfig {
                     name: "front".into(),
                     id: None,
@@ -363,6 +394,25 @@ mod tests {
                 .starts_with("config key `cameras[1].model.name` = front"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn capture_time_is_the_sources_unless_stamped_on_publishing() {
+        assert_eq!(CaptureTime::Source.pick(Some(5), 9), 5);
+        assert_eq!(CaptureTime::Source.pick(None, 9), 9);
+        assert_eq!(CaptureTime::Publish.pick(Some(5), 9), 9);
+        let c: IngestConfig = farsight_stage::parse_config(
+            "[[cameras]]\nfolder = \"frames\"\ncapture_time = \"publish\"\n[cameras.model]\nname = \"front\"\nwidth = 64\nheight = 48\nfx = 50.0\nfy = 50.0\ncx = 32.0\ncy = 24.0\n",
+            "t.toml",
+        )
+        .unwrap();
+        assert_eq!(c.cameras[0].capture_time, CaptureTime::Publish);
+        let e = farsight_stage::parse_config::<IngestConfig>(
+            "[[cameras]]\ncapture_time = \"now\"\n[cameras.model]\nname = \"front\"\n",
+            "t.toml",
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("capture_time"), "{e}");
     }
 
     #[test]

@@ -226,6 +226,7 @@ fn run() -> Result<()> {
         .enumerate()
         .map(|(i, c)| c.model.build(i as u32, &base))
         .collect::<Result<_, _>>()?;
+    let capture_times: Vec<_> = config.cameras.iter().map(|c| c.capture_time).collect();
 
     let bus = Bus::open(STAGE)?;
     let mut publishers = Vec::new();
@@ -375,7 +376,21 @@ fn run() -> Result<()> {
                 }
                 seq[camera] += 1;
                 let cam = &cameras[camera];
-                let stamp = Stamp::new(seq[camera], capture_time_ns.unwrap_or(now));
+                let stamp = Stamp::new(
+                    seq[camera],
+                    capture_times[camera].pick(capture_time_ns, now),
+                );
+                // Source times far from the wall clock (a recording): say once
+                // why a graph on the wall clock will not move on them.
+                if seq[camera] == 1 && now.abs_diff(stamp.capture_time_ns) > 3_600_000_000_000 {
+                    tracing::warn!(
+                        camera = %cameras[camera].name,
+                        offset_s = (stamp.capture_time_ns as f64 - now as f64) * 1e-9,
+                        "frames carry their source's capture times, over an hour from the wall clock: \
+                         stages on the wall clock judge them stale (the servo will not move); \
+                         set capture_time = \"publish\" to stamp them as they go out, or run the graph on clock = \"stamps\""
+                    );
+                }
                 let (frames, info) = &publishers[camera];
                 // The camera model goes first: a consumer that needs it (depth
                 // normals, bin projection) can use the very first frame.

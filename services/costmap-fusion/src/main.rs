@@ -4,7 +4,11 @@
 //! (`costmap/<name>`), depth images and class maps of the configured cameras;
 //! the window follows the pose. Frames are placed with the latest pose (no
 //! pose interpolation by capture time yet). The fused map and its layers go out at a
-//! fixed rate on `costmap/fused`, `costmap/far_field` and `costmap/near_field`.
+//! fixed rate on `costmap/fused`, `costmap/far_field` and `costmap/near_field`,
+//! stamped with the oldest of the newest pose and near-field captures
+//! (farsight_stage::inputs): republishing never makes a map look younger.
+//! A stale far field is left out of the fused map; a stale pose or near
+//! field stops the maps.
 
 use anyhow::Result;
 use farsight_costmap_fusion::map::FusionMap;
@@ -20,7 +24,7 @@ use farsight_interfaces::msg::{CostmapLayer, HealthState, Pose, Stamp};
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
 use farsight_interfaces::transport::ipc::{SliceSubscriber, Subscriber};
-use farsight_stage::{load_config, Health, StageArgs};
+use farsight_stage::{load_config, Freshness, Health, InputId, Need, StageArgs, StageInputs};
 use std::ops::ControlFlow;
 use std::time::Duration;
 
@@ -97,7 +101,29 @@ fn run() -> Result<()> {
         config.far_field,
     );
     let mut pose: Option<Pose> = None;
-    let mut last_stamp = Stamp::default();
+    // The pose and the near field are required (the near field is as fresh
+    // as its freshest source); the far field is optional, left out of the
+    // fused map when stale, unless it is the only map source.
+    let mut inputs = StageInputs::new(config.input_deadline_s);
+    let pose_in = inputs.add(topics::pose().name(), Need::Required);
+    let near_in: Vec<InputId> = config
+        .local_costmaps
+        .iter()
+        .map(|n| topics::costmap(n).name().to_string())
+        .chain(sources.iter().map(|s| match s.kind {
+            Source::Depth => topics::depth(&s.name).name().to_string(),
+            Source::Classes => topics::class_map(&s.name).name().to_string(),
+        }))
+        .map(|n| inputs.add_to("near field", &n, Need::Required))
+        .collect();
+    let far_in = config.use_far_field.then(|| {
+        let need = if near_in.is_empty() {
+            Need::Required
+        } else {
+            Need::Optional
+        };
+        inputs.add(topics::polar_bins().name(), need)
+    });
     let period_ns = (1e9 / config.publish_rate_hz) as u64;
     let mut next_publish = clock.now_ns();
     let stamped = config.clock == farsight_stage::ClockSource::Stamps;
@@ -110,6 +136,7 @@ fn run() -> Result<()> {
         if let Ok(Some(p)) = poses.latest() {
             if p.position_m.iter().all(|v| v.is_finite()) && p.yaw_rad.is_finite() {
                 map.recenter(p.position_m[0], p.position_m[1]);
+                inputs.consumed(pose_in, p.stamp);
                 pose = Some(p);
             } else {
                 health.dropped(&format_args!("non-finite pose {:?}", p.position_m));
@@ -145,7 +172,9 @@ fn run() -> Result<()> {
                                 p.yaw_rad,
                             );
                             map.add_process_noise();
-                            last_stamp = h.stamp;
+                            if let Some(far) = far_in {
+                                inputs.consumed(far, h.stamp);
+                            }
                             fresh = true;
                             tracing::debug!(?u, "far-field update");
                         }
@@ -162,8 +191,9 @@ fn run() -> Result<()> {
                     health.dropped(&format_args!("class table edit not applied: {e}"));
                 }
                 match src.observe(&frames[s], pose.as_ref(), &config, class_table.as_ref()) {
-                    Ok(Some(cells)) => {
+                    Ok(Some((stamp, cells))) => {
                         health.input();
+                        inputs.consumed(near_in[config.local_costmaps.len() + s], stamp);
                         for ((gx, gy), cost) in cells {
                             map.fix_local(gx, gy, cost);
                         }
@@ -184,7 +214,7 @@ fn run() -> Result<()> {
                         ));
                     } else {
                         map.apply_local_costmap(&h, s.data());
-                        last_stamp = h.stamp;
+                        inputs.consumed(near_in[k - 1], h.stamp);
                         fresh = true;
                     }
                 }
@@ -196,20 +226,30 @@ fn run() -> Result<()> {
         // On the stamps' clock every input message gets its maps, so each
         // frame's costmap is planned on exactly once.
         let due = if stamped { fresh } else { now >= next_publish };
-        if due && pose.is_some() {
-            next_publish = now + period_ns;
-            for (layer, publisher) in &outputs {
-                let published = publisher.publish_with(cells, |out| {
-                    map.export_into(last_stamp, *layer, config.use_far_field, out)
-                });
-                if let Err(e) = published {
-                    health.dropped(&e);
+        let input_now = inputs.now_ns(config.clock);
+        let freshness = inputs.check(input_now);
+        match (due, inputs.output_stamp()) {
+            // A required input is stale: the maps would look as fresh as
+            // the pose while showing the world as it was. Downstream stages
+            // see the last maps age instead.
+            _ if freshness.is_stale() => health.set(HealthState::DEGRADED, freshness.reason()),
+            (true, Some(stamp)) => {
+                next_publish = now + period_ns;
+                let far_field = far_in.is_some_and(|far| inputs.is_fresh(far, input_now));
+                for (layer, publisher) in &outputs {
+                    let published = publisher
+                        .publish_with(cells, |out| map.export_into(stamp, *layer, far_field, out));
+                    if let Err(e) = published {
+                        health.dropped(&e);
+                    }
                 }
+                match &freshness {
+                    Freshness::Fresh => health.set(HealthState::OK, ""),
+                    other => health.set(HealthState::DEGRADED, other.reason()),
+                }
+                health.output(stamp, now);
             }
-            health.set(HealthState::OK, "");
-            health.output(last_stamp, now);
-        } else if pose.is_none() {
-            health.set(HealthState::DEGRADED, "no pose yet: the map has no place");
+            _ => {}
         }
         health.tick(now);
         ControlFlow::Continue(())
@@ -241,7 +281,7 @@ impl CameraSource {
         pose: Option<&Pose>,
         config: &FusionStageConfig,
         classes: Option<&ClassTableFile>,
-    ) -> Result<Option<Vec<FixedCell>>, String> {
+    ) -> Result<Option<(Stamp, Vec<FixedCell>)>, String> {
         if let Ok(Some(i)) = self.info.latest() {
             self.camera = Some(Camera::from_info(&i).map_err(|e| format!("camera info: {e}"))?);
         }
@@ -259,26 +299,30 @@ impl CameraSource {
         let rays = self.rays.as_ref().expect("just built");
         let nf = &config.near_field;
         let res = config.resolution_m;
-        Ok(Some(match self.kind {
-            Source::Depth => {
-                let depth = farsight_inference::depth_metres(&h, frame.data(), nf.depth_scale_m)
-                    .map_err(|e| e.to_string())?;
-                depth_cells(&depth, rays, cam, pose, res, nf)
-            }
-            Source::Classes => {
-                if h.encoding != PixelEncoding::MONO8 {
-                    return Err(format!("class map must be mono8, got {}", h.encoding));
+        Ok(Some((
+            h.stamp,
+            match self.kind {
+                Source::Depth => {
+                    let depth =
+                        farsight_inference::depth_metres(&h, frame.data(), nf.depth_scale_m)
+                            .map_err(|e| e.to_string())?;
+                    depth_cells(&depth, rays, cam, pose, res, nf)
                 }
-                let ids: Vec<u8> = frame
-                    .data()
-                    .chunks(h.stride_bytes as usize)
-                    .take(hh)
-                    .flat_map(|row| &row[..w])
-                    .copied()
-                    .collect();
-                let table = classes.ok_or("no class table")?.table();
-                class_map_cells(&ids, rays, cam, pose, res, nf, |c| table.cost_s_per_m(c))
-            }
-        }))
+                Source::Classes => {
+                    if h.encoding != PixelEncoding::MONO8 {
+                        return Err(format!("class map must be mono8, got {}", h.encoding));
+                    }
+                    let ids: Vec<u8> = frame
+                        .data()
+                        .chunks(h.stride_bytes as usize)
+                        .take(hh)
+                        .flat_map(|row| &row[..w])
+                        .copied()
+                        .collect();
+                    let table = classes.ok_or("no class table")?.table();
+                    class_map_cells(&ids, rays, cam, pose, res, nf, |c| table.cost_s_per_m(c))
+                }
+            },
+        )))
     }
 }

@@ -10,6 +10,11 @@
 //! publish_rate_hz = 2.0          # costmap/fused, costmap/far_field, costmap/near_field
 //! clock = "wall"                 # "stamps": publish once per input message instead of
 //!                                # at publish_rate_hz (lock-step simulation, replays)
+//! input_deadline_s = 1.0         # on capture time: an older far field is left out of
+//!                                # costmap/fused (FITAM with no far field); the pose and
+//!                                # the near field (any one of its sources; the far field
+//!                                # when none is configured) are required, and the maps
+//!                                # keep the stamp of the oldest of them
 //! health_rate_hz = 1.0
 //!
 //! [near_field]                   # see farsight_costmap_fusion::near_field::NearFieldConfig
@@ -47,6 +52,7 @@ pub struct FusionStageConfig {
     pub publish_rate_hz: f64,
     pub clock: farsight_stage::ClockSource,
     pub health_rate_hz: f64,
+    pub input_deadline_s: f64,
     pub near_field: NearFieldConfig,
     pub far_field: FarFieldConfig,
 }
@@ -62,6 +68,7 @@ impl Default for FusionStageConfig {
             publish_rate_hz: 2.0,
             clock: Default::default(),
             health_rate_hz: 1.0,
+            input_deadline_s: farsight_stage::inputs::DEFAULT_INPUT_DEADLINE_S,
             near_field: NearFieldConfig::default(),
             far_field: FarFieldConfig::default(),
         }
@@ -98,6 +105,7 @@ impl Validate for FusionStageConfig {
         ] {
             ConfigError::check(v > 0.0 && v <= 1000.0, k, v, "0 < rate <= 1000 Hz")?;
         }
+        farsight_stage::inputs::check_input_deadline(self.input_deadline_s)?;
         self.near_field.validate()?;
         self.far_field.validate()
     }

@@ -7,6 +7,8 @@
 //! - [`load_config`]: TOML into a typed config, then [`Validate`]; every error
 //!   names the file, key, value and what was expected;
 //! - [`init_tracing`]: `RUST_LOG`-style filters, JSON lines for journald;
+//! - [`StageInputs`]: required and optional inputs judged on capture time,
+//!   and the stamp outputs carry;
 //! - [`Health`]: the stage's [`StageHealth`] message, published at a fixed rate;
 //!   its tick also pings systemd's watchdog ([`watchdog`]);
 //! - shutdown: [`farsight_interfaces::transport::ipc::wait_loop`] returns
@@ -42,7 +44,10 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod inputs;
 pub mod watchdog;
+
+pub use inputs::{Freshness, InputId, Need, StageInputs};
 
 use farsight_interfaces::fixed::FixedStr;
 use farsight_interfaces::msg::{HealthState, StageHealth, Stamp};
@@ -314,6 +319,7 @@ pub struct Health {
     last_sent_ns: Option<u64>,
     seq: u64,
     watchdog: watchdog::Watchdog,
+    reason_logged: Option<std::time::Instant>,
 }
 
 impl Health {
@@ -332,17 +338,30 @@ impl Health {
             last_sent_ns: None,
             seq: 0,
             watchdog: watchdog::Watchdog::from_env(),
+            reason_logged: None,
         })
     }
 
-    /// Sets the state; a change of state is logged and published at the next tick.
+    /// Sets the state; a change of state is logged and published at the next
+    /// tick. A new reason in the same state (an input's age, counting up
+    /// while it is stale) goes out with the next periodic report and is
+    /// logged at most once a second, so a stale stage does not flood the
+    /// journal.
     pub fn set(&mut self, state: HealthState, reason: &str) {
-        if self.msg.state != state || self.msg.reason.as_str() != reason {
+        let state_changed = self.msg.state != state;
+        let reason_changed = self.msg.reason.as_str() != reason;
+        let quiet = self
+            .reason_logged
+            .is_some_and(|t| t.elapsed() < std::time::Duration::from_secs(1));
+        if state_changed || (reason_changed && !quiet) {
             if state == HealthState::OK {
                 tracing::info!(%state, "health");
             } else {
                 tracing::warn!(%state, reason, "health");
             }
+            self.reason_logged = Some(std::time::Instant::now());
+        }
+        if state_changed {
             self.last_sent_ns = None;
         }
         self.msg.state = state;

@@ -17,7 +17,7 @@ use farsight_interfaces::msg::*;
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
 use farsight_stage::ClockSource;
-use farsight_stage::{load_config, Health, StageArgs};
+use farsight_stage::{load_config, Health, Need, StageArgs, StageInputs};
 use farsight_subgoal_selection::hip::{choose, LibraryFile, Trajectory};
 use farsight_subgoal_selection::lrn_head::LrnHead;
 use farsight_subgoal_selection::planner::WorldPlanner;
@@ -80,6 +80,27 @@ fn run() -> Result<()> {
     } else {
         bins.listener()
     };
+    // The image or the bins, and the pose that places the goal: both
+    // required, and a subgoal carries the older capture of the two.
+    let mut inputs = StageInputs::new(config.input_deadline_s);
+    let primary_in = inputs.add(
+        &if povnav {
+            topics::navigability(&config.camera).name().to_string()
+        } else {
+            topics::angular_bins().name().to_string()
+        },
+        Need::Required,
+    );
+    let pose_in = inputs.add(topics::pose().name(), Need::Required);
+    // A stale required input: no subgoal (the servo's input then ages).
+    let judge = |inputs: &StageInputs, health: &mut Health| -> Option<Stamp> {
+        let freshness = inputs.check(inputs.now_ns(config.clock));
+        if freshness.is_stale() {
+            health.set(HealthState::DEGRADED, freshness.reason());
+            return None;
+        }
+        inputs.output_stamp()
+    };
     ipc::wait_loop(&[input], Some(Duration::from_millis(200)), |wake| {
         let now = clock.now_ns();
         if let Ok(Some(i)) = infos.latest() {
@@ -89,6 +110,7 @@ fn run() -> Result<()> {
             }
         }
         if let Ok(Some(p)) = poses.latest() {
+            inputs.consumed(pose_in, p.stamp);
             tracker.set_pose(p);
         }
         if let Ok(Some(g)) = goals.latest() {
@@ -105,6 +127,7 @@ fn run() -> Result<()> {
             };
             health.input();
             let h = *frame.header();
+            inputs.consumed(primary_in, h.stamp);
             let Some((bearing, _)) = target else {
                 health.set(
                     HealthState::DEGRADED,
@@ -127,6 +150,9 @@ fn run() -> Result<()> {
                 ));
                 return ControlFlow::Continue(());
             }
+            let Some(stamp) = judge(&inputs, &mut health) else {
+                return ControlFlow::Continue(());
+            };
             let size = (h.width, h.height);
             if half_widths.as_ref().is_none_or(|(s, _)| *s != size) {
                 let m = cam.model.scaled_to(h.width, h.height);
@@ -162,7 +188,7 @@ fn run() -> Result<()> {
                 Mode::Blocked => ServoMode::BLOCKED,
             };
             let subgoal = Subgoal {
-                stamp: h.stamp,
+                stamp,
                 source: SubgoalSource::POVNAV,
                 mode,
                 heading_rad: p.alignment_rad as f32,
@@ -179,7 +205,7 @@ fn run() -> Result<()> {
                 .map(|&(u, v)| [u as f32, v as f32])
                 .collect();
             let path = Path {
-                stamp: h.stamp,
+                stamp,
                 frame: PathFrame::IMAGE,
                 camera_id: h.camera_id,
                 points: FixedVec::from_slice(&points[..points.len().min(MAX_PATH_POINTS)])
@@ -207,7 +233,7 @@ fn run() -> Result<()> {
             {
                 Ok(()) => {
                     health.set(HealthState::OK, "");
-                    health.output(h.stamp, clock.now_ns());
+                    health.output(stamp, clock.now_ns());
                 }
                 Err(e) => health.dropped(&e),
             }
@@ -216,6 +242,7 @@ fn run() -> Result<()> {
                 return ControlFlow::Continue(());
             };
             health.input();
+            inputs.consumed(primary_in, b.stamp);
             let Some((bearing, distance)) = target else {
                 health.set(
                     HealthState::DEGRADED,
@@ -240,9 +267,12 @@ fn run() -> Result<()> {
                 health.set(HealthState::DEGRADED, "no affordable observed bin");
                 return ControlFlow::Continue(());
             };
+            let Some(stamp) = judge(&inputs, &mut health) else {
+                return ControlFlow::Continue(());
+            };
             let d = config.subgoal_distance_m.min(distance);
             let subgoal = Subgoal {
-                stamp: b.stamp,
+                stamp,
                 source: if lrn_cfg.goal_heuristic {
                     SubgoalSource::GOAL_HEURISTIC
                 } else {
@@ -260,7 +290,7 @@ fn run() -> Result<()> {
             match subgoals.publish(&subgoal) {
                 Ok(()) => {
                     health.set(HealthState::OK, "");
-                    health.output(b.stamp, clock.now_ns());
+                    health.output(stamp, clock.now_ns());
                 }
                 Err(e) => health.dropped(&e),
             }
@@ -361,7 +391,14 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
 
     let clock = WallClock;
     let mut pose: Option<Pose> = None;
-    let mut stamp = Stamp::default();
+    // The costmap and the pose are required; a plan (and every replan of
+    // it) carries the older capture of the two. HIP's camera image is
+    // optional: stale, the learned term is left out.
+    let mut inputs = StageInputs::new(config.input_deadline_s);
+    let costmap_in = inputs.add(topics::costmap(&config.costmap).name(), Need::Required);
+    let pose_in = inputs.add(topics::pose().name(), Need::Required);
+    let image_in = matches!(planner, MapPlanner::Hip { model: Some(_), .. })
+        .then(|| inputs.add(topics::camera_image(&config.camera).name(), Need::Optional));
     let mut dirty = true;
     let period_ns = (1e9 / config.replan_rate_hz) as u64;
     let mut next_plan = 0u64;
@@ -381,6 +418,9 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
             {
                 // The learned term: -log q(tau | o) of each trajectory for the newest frame.
                 if let Ok(Some(frame)) = images.latest() {
+                    if let Some(id) = image_in {
+                        inputs.consumed(id, frame.header().stamp);
+                    }
                     let mut timings = Default::default();
                     let out = model.run(frame.header(), frame.data(), &mut timings, |outputs| {
                         farsight_inference::Perception::from_outputs(outputs, None)
@@ -405,6 +445,7 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
                 }
             }
             if let Ok(Some(p)) = poses.latest() {
+                inputs.consumed(pose_in, p.stamp);
                 tracker.set_pose(p);
                 pose = Some(p);
             }
@@ -442,7 +483,7 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
                     if let Err(e) = h.validate(c.data().len()) {
                         health.dropped(&format_args!("costmap/{}: {e}", config.costmap));
                     } else {
-                        stamp = h.stamp;
+                        inputs.consumed(costmap_in, h.stamp);
                         fresh_costmap = true;
                         match &mut planner {
                             MapPlanner::DStarLite(pl) => {
@@ -468,6 +509,17 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
             if !due {
                 return ControlFlow::Continue(());
             }
+            let input_now = inputs.now_ns(config.clock);
+            let freshness = inputs.check(input_now);
+            let stamp = match inputs.output_stamp() {
+                Some(stamp) if !freshness.is_stale() => stamp,
+                _ => {
+                    // No plan from a map or pose the robot has left behind.
+                    health.set(HealthState::DEGRADED, freshness.reason());
+                    return ControlFlow::Continue(());
+                }
+            };
+            let learned_fresh = image_in.is_some_and(|id| inputs.is_fresh(id, input_now));
             dirty = false;
             next_plan = now + period_ns;
             let source = planner.source();
@@ -513,7 +565,8 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
                             _ => 0.0,
                         }
                     };
-                    match choose(library, goal_robot, at, learned.as_deref(), &config.hip) {
+                    let learned = learned.as_deref().filter(|_| learned_fresh);
+                    match choose(library, goal_robot, at, learned, &config.hip) {
                         Some(c) => {
                             tracing::debug!(?c, "HIP choice");
                             std::iter::once(robot)

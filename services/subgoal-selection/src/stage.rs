@@ -9,8 +9,12 @@
 //!                                # dstar_lite: the subgoal is this far along the path
 //! costmap = "fused"              # dstar_lite, hip: plans on costmap/<costmap>
 //! replan_rate_hz = 2.0           # dstar_lite, hip: at most this often (D* Lite also on each change)
-//! clock = "wall"                 # dstar_lite, hip: "stamps" plans once per costmap message
-//!                                # instead (lock-step simulation, replays)
+//! clock = "wall"                 # "stamps": time is the inputs' capture times, and
+//!                                # dstar_lite, hip plan once per costmap message
+//!                                # (lock-step simulation, replays)
+//! input_deadline_s = 1.0         # on capture time: an older required input (the image,
+//!                                # bins or costmap; the pose) stops the stage; an older
+//!                                # hip camera image drops the learned term
 //! hip_library = ""               # hip: the trajectory library (`farsight hip-library` writes one)
 //! hip_model = ""                 # hip: model config of the learned density (an output of kind
 //!                                # "trajectory_log_likelihood", classes = library size) run on
@@ -48,6 +52,7 @@ pub struct SubgoalStageConfig {
     pub hip_library: std::path::PathBuf,
     pub hip_model: std::path::PathBuf,
     pub health_rate_hz: f64,
+    pub input_deadline_s: f64,
     pub anchor_latitude_deg: Option<f64>,
     pub anchor_longitude_deg: Option<f64>,
     pub povnav: PovnavConfig,
@@ -71,6 +76,7 @@ impl Default for SubgoalStageConfig {
             hip_library: Default::default(),
             hip_model: Default::default(),
             health_rate_hz: 1.0,
+            input_deadline_s: farsight_stage::inputs::DEFAULT_INPUT_DEADLINE_S,
             anchor_latitude_deg: None,
             anchor_longitude_deg: None,
             povnav: PovnavConfig::default(),
@@ -136,6 +142,7 @@ impl Validate for SubgoalStageConfig {
             self.health_rate_hz,
             "a positive rate in Hz",
         )?;
+        farsight_stage::inputs::check_input_deadline(self.input_deadline_s)?;
         farsight_stage::check_anchor(self.anchor_latitude_deg, self.anchor_longitude_deg)?;
         self.povnav.validate()?;
         self.lrn.validate()?;

@@ -3,7 +3,10 @@
 //! features or a heading; or a planner's path, by carrot) through the bounded
 //! control law and the acceleration limits; a stale input, an active e-stop or
 //! a reached goal give zero velocity at once, with the reason in the command
-//! and in the stage's health. An old command is never republished: every
+//! and in the stage's health. Staleness is judged on capture time
+//! (farsight_stage::inputs): the tracked input carries the oldest capture
+//! behind it, and the pose is required when tracking a path or judging a
+//! goal. An old command is never republished: every
 //! output is computed from the inputs of that moment. Every command carries
 //! `command_ttl_s` as its time-to-live, so a base stops by itself once this
 //! stage dies or freezes (farsight_interfaces::base).
@@ -13,12 +16,12 @@
 //! run is the same on any machine.
 
 use anyhow::Result;
-use farsight_interfaces::clock::{Clock, InputDeadline, ManualClock, WallClock};
+use farsight_interfaces::clock::{Clock, InputDeadline, WallClock};
 use farsight_interfaces::geo::GoalTracker;
 use farsight_interfaces::msg::{CommandReason, HealthState, Stamp, SubgoalSource, VelocityCommand};
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
-use farsight_stage::{load_config, Health, StageArgs};
+use farsight_stage::{load_config, Health, Need, StageArgs, StageInputs};
 use farsight_velocity_servoing::stage::{ClockSource, ServoStageConfig, Track};
 use farsight_velocity_servoing::{
     carrot_command, carrot_point, decide, heading_command, path_in_robot_frame, povnav_command,
@@ -49,17 +52,24 @@ fn run() -> Result<()> {
     let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
     farsight_stage::announce_ready(STAGE);
 
-    let stamps = ManualClock::new(0);
-    let clock: &dyn Clock = match config.clock {
-        ClockSource::Wall => &WallClock,
-        ClockSource::Stamps => &stamps,
-    };
-    let mut deadline = InputDeadline::new(config.subgoal_deadline_s);
-    let (mut subgoal, mut path, mut estop, mut pose) = (None, None, None, None);
     let tracked = match config.track {
-        Track::Subgoal => "subgoal",
-        Track::Path => "path",
+        Track::Subgoal => "nav/subgoal".to_string(),
+        Track::Path => topics::path(&config.path_topic).name().to_string(),
     };
+    // Staleness is judged on capture time: the tracked input's stamp is the
+    // oldest capture behind it, so a dead or frozen stage anywhere upstream
+    // ages it. A path is followed in the world frame with the pose, and a
+    // goal is judged with it, so the pose is then required too.
+    let mut inputs = StageInputs::new(config.subgoal_deadline_s);
+    let tracked_in = inputs.add(&tracked, Need::Required);
+    let pose_in = inputs.add(
+        topics::pose().name(),
+        match config.track {
+            Track::Path => Need::Required,
+            Track::Subgoal => Need::Optional,
+        },
+    );
+    let (mut subgoal, mut path, mut estop, mut pose) = (None, None, None, None);
     let mut limiter = RateLimiter::default();
     let period = Duration::from_secs_f64(1.0 / config.output_rate_hz);
     // The first command's ramp spans one nominal period.
@@ -77,15 +87,8 @@ fn run() -> Result<()> {
             match subgoals.latest() {
                 Ok(Some(s)) => {
                     if config.track == Track::Subgoal {
-                        if stamped {
-                            stamps.set_ns(s.stamp.capture_time_ns);
-                        }
                         health.input();
-                        deadline.seen(if stamped {
-                            s.stamp.capture_time_ns
-                        } else {
-                            clock.now_ns()
-                        });
+                        inputs.consumed(tracked_in, s.stamp);
                         fresh_tracked = true;
                     }
                     subgoal = Some(s);
@@ -96,15 +99,8 @@ fn run() -> Result<()> {
             match paths.latest() {
                 Ok(Some(p)) => {
                     if config.track == Track::Path {
-                        if stamped {
-                            stamps.set_ns(p.stamp.capture_time_ns);
-                        }
                         health.input();
-                        deadline.seen(if stamped {
-                            p.stamp.capture_time_ns
-                        } else {
-                            clock.now_ns()
-                        });
+                        inputs.consumed(tracked_in, p.stamp);
                         fresh_tracked = true;
                     }
                     path = Some(p);
@@ -116,18 +112,18 @@ fn run() -> Result<()> {
                 estop = Some(e);
             }
             if let Ok(Some(p)) = poses.latest() {
-                if stamped {
-                    stamps.set_ns(p.stamp.capture_time_ns);
-                }
+                inputs.consumed(pose_in, p.stamp);
                 tracker.set_pose(p);
                 pose = Some(p);
             }
             if let Ok(Some(g)) = goals.latest() {
                 tracker.set_goal(g);
+                // Whether the goal is reached is judged with the pose.
+                inputs.set_need(pose_in, Need::Required);
             }
             // Commands go out on the tick only (a fixed output rate), and an e-stop
             // is acted on the moment it arrives.
-            let now = clock.now_ns();
+            let now = inputs.now_ns(config.clock);
             let estop_now = wake == Wake::Input(1) && estop.is_some_and(|e| e.active == 1);
             if fresh_tracked {
                 watchdog.seen(WallClock.now_ns());
@@ -145,17 +141,20 @@ fn run() -> Result<()> {
             }
             fresh_tracked = false;
             let goal_distance = tracker.goal_in_robot_frame().map(|(_, d)| d);
-            let inputs = Inputs {
-                subgoal_stale: deadline.is_stale(now) || starved,
+            let freshness = inputs.check(now);
+            let decision = Inputs {
+                subgoal_stale: freshness.is_stale() || starved,
                 estop_active: estop.is_some_and(|e| e.active == 1),
                 goal_distance_m: goal_distance,
             };
-            let stamp = match config.track {
-                Track::Subgoal => subgoal.map(|s| s.stamp),
-                Track::Path => path.map(|p| p.stamp),
-            }
-            .unwrap_or_default();
-            let cmd = match decide(&inputs, &config.servo) {
+            // The command carries the oldest capture behind it; before every
+            // required input is in, the tracked input's (what a lock-step
+            // simulator waits for).
+            let stamp = inputs
+                .output_stamp()
+                .or(inputs.newest(tracked_in))
+                .unwrap_or_default();
+            let cmd = match decide(&decision, &config.servo) {
                 Some(reason) => {
                     limiter.stop();
                     // The next command's ramp starts from the stop, over one period.
@@ -165,13 +164,7 @@ fn run() -> Result<()> {
                             "no {tracked} for {} s of wall time",
                             config.subgoal_deadline_s
                         ),
-                        CommandReason::STALE_INPUT => match deadline.age_s(now) {
-                            Some(age) => format!(
-                                "{tracked} is {age:.2} s old (deadline {} s)",
-                                config.subgoal_deadline_s
-                            ),
-                            None => format!("no {tracked} received yet"),
-                        },
+                        CommandReason::STALE_INPUT => freshness.reason().to_string(),
                         CommandReason::ESTOP => "e-stop active".to_string(),
                         _ => "goal reached".to_string(),
                     };
@@ -249,6 +242,6 @@ fn run() -> Result<()> {
         Stamp::default(),
         CommandReason::NO_SUBGOAL,
     ));
-    health.stopping(clock.now_ns());
+    health.stopping(WallClock.now_ns());
     Ok(())
 }

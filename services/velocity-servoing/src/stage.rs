@@ -10,7 +10,10 @@
 //! track = "subgoal"              # "subgoal" (nav/subgoal: POVNav features or an
 //!                                # LRN heading) or "path" (a planner's path, by carrot)
 //! path_topic = "planned"         # with track = "path": nav/path/<path_topic>
-//! subgoal_deadline_s = 0.5       # an older tracked input (subgoal or path) stops the robot
+//! subgoal_deadline_s = 0.5       # stop when the tracked input (subgoal or path), or the
+//!                                # pose it needs, is older than this, measured from the
+//!                                # capture time of the oldest frame behind it: a dead or
+//!                                # frozen stage anywhere upstream stops the robot
 //! command_ttl_s = 0.25           # every command's time-to-live: the base obeys it this
 //!                                # long after receipt, then stops unless a newer one came
 //!                                # (so a dead or frozen servo stops the robot)

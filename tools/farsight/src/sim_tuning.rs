@@ -31,6 +31,7 @@ pub fn povnav_subgoal_selection() -> SubgoalStageConfig {
         method: "povnav".into(),
         camera: "front".into(),
         safety_margin_m: 0.35,
+        clock: ClockSource::Stamps,
         ..Default::default()
     }
 }
@@ -110,6 +111,7 @@ pub fn lrn_bins() -> farsight_bin_projection::LrnBinsConfig {
 pub fn lrn_subgoal_selection() -> SubgoalStageConfig {
     SubgoalStageConfig {
         method: "lrn".into(),
+        clock: ClockSource::Stamps,
         ..Default::default()
     }
 }

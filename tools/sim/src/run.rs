@@ -391,7 +391,18 @@ pub fn run(a: RunArgs) -> Result<Summary> {
     let wall_start = Instant::now();
     for k in 1u64.. {
         let r = episode.robot;
-        let stamp = Stamp::new(k, capture_time_ns(episode.time_s));
+        // Lock-step: the simulated clock (the graph runs on the stamps'
+        // clock). Real time: the wall clock, as a robot's camera stamps its
+        // frames, so stages on the wall clock judge their age truly.
+        let stamp = Stamp::new(
+            k,
+            match a.clock {
+                ClockMode::Lockstep => capture_time_ns(episode.time_s),
+                ClockMode::Realtime => farsight_interfaces::clock::Clock::now_ns(
+                    &farsight_interfaces::clock::WallClock,
+                ),
+            },
+        );
         let [px, py, pyaw] = reported_pose(
             r.pose(),
             a.pose_noise_m,
