@@ -32,7 +32,7 @@ while [ $# -gt 0 ]; do
     *) echo "install.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
 done
-stages="camera-ingest inference bin-projection costmap-fusion subgoal-selection velocity-servoing bridge"
+stages="camera-ingest inference bin-projection costmap-fusion subgoal-selection velocity-servoing command-mux bridge"
 say() { echo "install: $*"; }
 act() { say "$*"; [ "$dry" = 1 ] || "$@"; }
 if [ -z "$prefix" ] && [ "$dry" = 0 ] && [ "$(id -u)" != 0 ]; then

@@ -14,7 +14,7 @@ while [ $# -gt 0 ]; do
     *) echo "uninstall.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
-stages="camera-ingest inference bin-projection costmap-fusion subgoal-selection velocity-servoing bridge"
+stages="camera-ingest inference bin-projection costmap-fusion subgoal-selection velocity-servoing command-mux bridge"
 say() { echo "uninstall: $*"; }
 act() { say "$*"; [ "$dry" = 1 ] || "$@"; }
 if [ -z "$prefix" ]; then

@@ -9,13 +9,14 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-const STAGES: [&str; 7] = [
+const STAGES: [&str; 8] = [
     "camera-ingest",
     "inference",
     "bin-projection",
     "costmap-fusion",
     "subgoal-selection",
     "velocity-servoing",
+    "command-mux",
     "bridge",
 ];
 
@@ -210,6 +211,7 @@ fn the_shipped_configs_start_their_stages() {
         "costmap-fusion",
         "subgoal-selection",
         "velocity-servoing",
+        "command-mux",
         "bridge",
     ] {
         running.push(ns.start_stage(&format!("farsight-{s}"), s, &etc.join(format!("{s}.toml"))));

@@ -24,12 +24,17 @@ fn robot(ns: &Namespace, hosts: &TwoHosts, port: u16, speed: &str) -> Vec<Proc> 
     let r = Some(hosts.robot.as_str());
     let mut procs = Vec::new();
     for s in STAGES {
-        let cfg = ns.write(
-            &format!("{s}.toml"),
-            &std::fs::read_to_string(fixture(&format!("{s}.toml"))).unwrap(),
-        );
+        let mut text = std::fs::read_to_string(fixture(&format!("{s}.toml"))).unwrap();
+        if s == "velocity-servoing" {
+            // Behind the command mux, as deployed.
+            text = format!("command_topic = \"cmd/autonomy\"\n{text}");
+        }
+        let cfg = ns.write(&format!("{s}.toml"), &text);
         procs.push(ns.start_stage_in(r, &format!("farsight-{s}"), s, &cfg));
     }
+    // The one writer of cmd/velocity: the operator's teleop over autonomy.
+    let mux = ns.write("command-mux.toml", "");
+    procs.push(ns.start_stage_in(r, "farsight-command-mux", "command-mux", &mux));
     let users = ns.write(
         "users.txt",
         &std::fs::read_to_string(repo_root().join("deploy/zenoh/users.txt")).unwrap(),
@@ -46,7 +51,7 @@ fn robot(ns: &Namespace, hosts: &TwoHosts, port: u16, speed: &str) -> Vec<Proc> 
         "robot = \"robot\"\n[zenoh]\nconfig_file = {:?}\n\
          [[export]]\ntopic = \"camera/front/image\"\ndownsample = 2\ncompression = \"jpeg\"\n\
          [[export]]\ntopic = \"perception/front/navigability\"\ndownsample = 2\ncompression = \"png\"\n\
-         [[import]]\ntopic = \"nav/goal\"\n[[import]]\ntopic = \"cmd/velocity\"\n",
+         [[import]]\ntopic = \"nav/goal\"\n[[import]]\ntopic = \"cmd/teleop\"\n",
         router.to_str().unwrap()
     );
     for t in [

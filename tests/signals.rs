@@ -44,6 +44,7 @@ fn start_all(ns: &Namespace) -> Vec<Running> {
         "method = \"povnav\"\ncamera = \"front\"\n",
     );
     stage("velocity-servoing", "");
+    stage("command-mux", "");
     stage(
         "bridge",
         &format!(

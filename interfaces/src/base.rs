@@ -33,18 +33,29 @@ pub fn obey_or_stop(
     now_s: f64,
     max_ttl_s: f64,
 ) -> (f64, f64) {
+    match time_left_s(cmd, received_s, now_s, max_ttl_s) {
+        Some(_) => (f64::from(cmd.linear_mps), f64::from(cmd.angular_radps)),
+        None => (0.0, 0.0),
+    }
+}
+
+/// How many seconds `cmd`, received at `received_s`, is still to be obeyed
+/// at `now_s` (see [`obey_or_stop`]); `None` once expired or for a
+/// non-finite command.
+pub fn time_left_s(
+    cmd: &VelocityCommand,
+    received_s: f64,
+    now_s: f64,
+    max_ttl_s: f64,
+) -> Option<f64> {
     let ttl_s = match cmd.ttl_ms {
         0 => max_ttl_s,
         ms => (f64::from(ms) * 1e-3).min(max_ttl_s),
     };
-    let (v, w) = (f64::from(cmd.linear_mps), f64::from(cmd.angular_radps));
+    let finite = cmd.linear_mps.is_finite() && cmd.angular_radps.is_finite();
     let age_s = now_s - received_s;
     // A clock that went backwards (age < 0) is not a licence to move.
-    if v.is_finite() && w.is_finite() && (0.0..ttl_s).contains(&age_s) {
-        (v, w)
-    } else {
-        (0.0, 0.0)
-    }
+    (finite && (0.0..ttl_s).contains(&age_s)).then_some(ttl_s - age_s)
 }
 
 /// The base's last command and when it arrived (see the module contract).
@@ -78,6 +89,13 @@ impl CommandGate {
         self.last.as_ref().map_or((0.0, 0.0), |(cmd, received_s)| {
             obey_or_stop(cmd, *received_s, now_s, self.max_ttl_s)
         })
+    }
+
+    /// The last command while it is to be obeyed at `now_s`, with the
+    /// seconds it has left (a live zero counts: it is a command to stand).
+    pub fn live(&self, now_s: f64) -> Option<(&VelocityCommand, f64)> {
+        let (cmd, received_s) = self.last.as_ref()?;
+        time_left_s(cmd, *received_s, now_s, self.max_ttl_s).map(|left| (cmd, left))
     }
 
     /// The last command received, if any.

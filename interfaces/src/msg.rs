@@ -613,7 +613,10 @@ pub struct NavGoal {
     pub tolerance_m: f32,
 }
 
-/// Emergency stop. While `active` is 1 the servo publishes zero velocity.
+/// Emergency stop. While `active` is 1 ([`EStop::PRESSED`]) the servo
+/// publishes zero velocity; the command mux latches it until an operator
+/// sends [`EStop::CLEAR`]. An operator's e-stop tool sends its state
+/// periodically: the mux's deadman takes that as the operator link's heartbeat.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend, Serialize, Deserialize)]
 #[repr(C)]
 #[type_name("farsight::EStop")]
@@ -621,6 +624,15 @@ pub struct EStop {
     pub stamp: Stamp,
     pub active: u8,
     pub source: FixedStr<32>,
+}
+
+impl EStop {
+    /// The button is not pressed (a heartbeat; does not clear a latch).
+    pub const RELEASED: u8 = 0;
+    /// Stop now; the mux latches it.
+    pub const PRESSED: u8 = 1;
+    /// An operator clears the mux's latched e-stop.
+    pub const CLEAR: u8 = 2;
 }
 
 code_enum! {

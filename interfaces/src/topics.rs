@@ -188,6 +188,10 @@ pub fn pose() -> Topic<Pose> {
 pub fn velocity_command() -> Topic<VelocityCommand> {
     Topic::known("cmd/velocity".into())
 }
+/// An input of the command mux: `cmd/teleop`, `cmd/autonomy`, ...
+pub fn command_input(name: &str) -> Topic<VelocityCommand> {
+    Topic::known(format!("cmd/{name}"))
+}
 pub fn estop() -> Topic<EStop> {
     Topic::known("safety/estop".into())
 }
@@ -232,7 +236,7 @@ pub fn kind_of(topic: &str) -> Option<TopicKind> {
         ["nav", "path", _] => TopicKind::Path,
         ["nav", "goal"] => TopicKind::Goal,
         ["state", "pose"] => TopicKind::Pose,
-        ["cmd", "velocity"] => TopicKind::VelocityCommand,
+        ["cmd", _] => TopicKind::VelocityCommand,
         ["safety", "estop"] => TopicKind::EStop,
         ["health", _] => TopicKind::Health,
         _ => return None,

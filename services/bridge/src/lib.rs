@@ -28,7 +28,9 @@
 //! jpeg_quality = 80
 //!
 //! [[import]]                   # default imports: nav/goal, safety/estop (a topic is
-//!                              # never both exported and imported: an echo loop)
+//!                              # never both exported and imported: an echo loop; an
+//!                              # operator's velocity commands come in as cmd/teleop, an
+//!                              # input of farsight-command-mux, never as cmd/velocity)
 //! topic = "nav/goal"
 //! ```
 
@@ -227,6 +229,15 @@ impl Validate for BridgeConfig {
                         "a fixed-size farsight topic (pose, goal, estop, velocity, health, camera info, subgoal, path, angular bins)",
                     ))
                 }
+            }
+            // The base's topic has one writer, the command mux; an operator's
+            // commands are one of its inputs, ranked, capped and e-stopped.
+            if im.topic == topics::velocity_command().name() {
+                return Err(ConfigError::invalid(
+                    format!("import[{i}].topic"),
+                    &im.topic,
+                    "a command mux input such as \"cmd/teleop\": cmd/velocity has one writer, farsight-command-mux",
+                ));
             }
             // Each message would come back in and go out again, without end.
             if self.export.iter().any(|e| e.topic == im.topic) {
@@ -443,11 +454,20 @@ mod tests {
         .unwrap_err();
         assert!(e.to_string().contains("import[0].topic"), "{e}");
         let e = farsight_stage::parse_config::<BridgeConfig>(
-            "[[export]]\ntopic = \"cmd/velocity\"\n[[import]]\ntopic = \"cmd/velocity\"",
+            "[[export]]\ntopic = \"cmd/teleop\"\n[[import]]\ntopic = \"cmd/teleop\"",
             "b.toml",
         )
         .unwrap_err();
         assert!(e.to_string().contains("echo loop"), "{e}");
+        let e = farsight_stage::parse_config::<BridgeConfig>(
+            "[[import]]\ntopic = \"cmd/velocity\"",
+            "b.toml",
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().contains("import[0].topic") && e.to_string().contains("command-mux"),
+            "{e}"
+        );
         let ok =
             farsight_stage::parse_config::<BridgeConfig>("robot = \"husky1\"", "b.toml").unwrap();
         assert_eq!(ok.import.len(), 2);

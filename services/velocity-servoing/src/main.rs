@@ -48,7 +48,9 @@ fn run() -> Result<()> {
     let estops = bus.subscriber(&topics::estop())?;
     let poses = bus.subscriber(&topics::pose())?;
     let goals = bus.subscriber(&topics::goal())?;
-    let commands = bus.publisher(&topics::velocity_command())?;
+    let commands = bus.publisher(&topics::Topic::<VelocityCommand>::new(
+        config.command_topic.as_str(),
+    )?)?;
     let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
     farsight_stage::announce_ready(STAGE);
 

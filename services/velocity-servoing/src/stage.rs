@@ -14,6 +14,8 @@
 //!                                # pose it needs, is older than this, measured from the
 //!                                # capture time of the oldest frame behind it: a dead or
 //!                                # frozen stage anywhere upstream stops the robot
+//! command_topic = "cmd/velocity" # where commands go: the base's topic when the servo is
+//!                                # its only writer; "cmd/autonomy" behind farsight-command-mux
 //! command_ttl_s = 0.25           # every command's time-to-live: the base obeys it this
 //!                                # long after receipt, then stops unless a newer one came
 //!                                # (so a dead or frozen servo stops the robot)
@@ -59,6 +61,7 @@ pub struct ServoStageConfig {
     pub track: Track,
     pub path_topic: String,
     pub subgoal_deadline_s: f64,
+    pub command_topic: String,
     pub command_ttl_s: f64,
     pub health_rate_hz: f64,
     pub anchor_latitude_deg: Option<f64>,
@@ -74,6 +77,7 @@ impl Default for ServoStageConfig {
             track: Track::Subgoal,
             path_topic: "planned".into(),
             subgoal_deadline_s: 0.5,
+            command_topic: "cmd/velocity".into(),
             command_ttl_s: 0.25,
             health_rate_hz: 1.0,
             anchor_latitude_deg: None,
@@ -118,6 +122,15 @@ impl Validate for ServoStageConfig {
             "path_topic",
             &self.path_topic,
             "a topic name such as \"planned\"",
+        )?;
+        ConfigError::check(
+            matches!(
+                farsight_interfaces::topics::kind_of(&self.command_topic),
+                Some(farsight_interfaces::topics::TopicKind::VelocityCommand)
+            ),
+            "command_topic",
+            &self.command_topic,
+            "a command topic: \"cmd/velocity\" or a command mux input such as \"cmd/autonomy\"",
         )?;
         farsight_stage::check_anchor(self.anchor_latitude_deg, self.anchor_longitude_deg)?;
         self.servo.validate()

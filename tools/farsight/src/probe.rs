@@ -84,8 +84,9 @@ pub struct NetPublishNavArgs {
     robot: String,
     #[arg(long, default_value_t = 10.0)]
     duration_s: f64,
-    /// Also send a teleop velocity command (0.2 m/s ahead) each time: what
-    /// an operator's joystick does, and what a laptop must not be able to.
+    /// Also send a teleop velocity command (0.2 m/s ahead) on `cmd/teleop`
+    /// each time: what an operator's joystick does (through the robot's
+    /// command mux), and what a laptop must not be able to.
     #[arg(long)]
     velocity: bool,
 }
@@ -294,7 +295,7 @@ fn net_publish_nav(a: NetPublishNavArgs) -> Result<()> {
     let bus = NetBus::open(config, &a.robot).context("opening zenoh session")?;
     let mut pose_pub = bus.publisher(&topics::pose())?;
     let mut goal_pub = bus.publisher(&topics::goal())?;
-    let mut cmd_pub = bus.publisher(&topics::velocity_command())?;
+    let mut cmd_pub = bus.publisher(&topics::command_input("teleop"))?;
     let end = Instant::now() + Duration::from_secs_f64(a.duration_s);
     let mut seq = 1;
     while Instant::now() < end {
