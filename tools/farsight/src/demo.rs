@@ -75,7 +75,7 @@ impl Drop for Stage {
     }
 }
 
-fn sibling(name: &str) -> Result<PathBuf> {
+pub(crate) fn sibling(name: &str) -> Result<PathBuf> {
     let p = std::env::current_exe()?.with_file_name(name);
     if !p.exists() {
         bail!(
@@ -99,7 +99,17 @@ pub fn start_ready(name: &'static str, config: &Path, prefix: &str, out: &Path) 
 }
 
 fn start(name: &'static str, config: &Path, prefix: &str, log: &Path) -> Result<Stage> {
-    let log_file = std::fs::File::create(log)?;
+    start_logging(name, config, prefix, std::fs::File::create(log)?)
+}
+
+/// Starts a stage with its stderr into `log_file` (a restarted stage's log
+/// goes on in the same file); its stdout stays piped for the ready line.
+pub(crate) fn start_logging(
+    name: &'static str,
+    config: &Path,
+    prefix: &str,
+    log_file: std::fs::File,
+) -> Result<Stage> {
     let child = Command::new(sibling(&format!("farsight-{name}"))?)
         .arg("--config")
         .arg(config)

@@ -20,6 +20,7 @@ mod bench_nav;
 mod bench_navigation;
 mod bench_planning;
 mod bench_recorder;
+mod chaos;
 mod dataset;
 mod demo;
 mod demo_sim;
@@ -53,6 +54,10 @@ enum Command {
     Bench(bench::BenchCommand),
     /// The closed loop in simulation (default: bug-trap), or with --orfd the graph on the real ORFD frames.
     Demo(demo::DemoArgs),
+    /// Motion safety under faults: the simulator drives the FITAM graph in real
+    /// time while stages are killed and frozen at random; prints stale moving
+    /// commands, self-exits, restart-to-output and distance made good.
+    Chaos(chaos::ChaosArgs),
     /// Self-supervised training sets (LRN hotspots, FITAM far-field classes) from recordings.
     Dataset(dataset::DatasetArgs),
     /// Run a model on image files offline, as the inference stage would, and write PNGs.
@@ -76,6 +81,7 @@ fn main() {
         Command::Probe(c) => probe::run(c),
         Command::Bench(c) => bench::run(c),
         Command::Demo(a) => demo::run(a),
+        Command::Chaos(a) => chaos::main(a),
         Command::Infer(a) => infer::run(a),
         Command::Dataset(a) => dataset::run(a),
         Command::HipLibrary(a) => hip_library::run(a),

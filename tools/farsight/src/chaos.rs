@@ -1,0 +1,681 @@
+//! `farsight chaos`: motion safety under faults, measured. The simulator
+//! drives the FITAM graph in real time (every stage on the wall clock,
+//! camera frames stamped at capture, the servo behind the command mux, as
+//! deployed), while this process kills (SIGKILL, then a restart) and
+//! freezes (SIGSTOP, then SIGCONT) one random stage at a time, and watches
+//! every topic that moves the robot:
+//!
+//! - **stale moving commands**: a moving command from the servo
+//!   (`cmd/autonomy`) whose oldest capture was older than the servo's
+//!   deadline when it was published; on `cmd/velocity` (the mux holds a
+//!   command for its TTL) older than deadline plus TTL. The publish time is
+//!   bounded by this process's polls (a message first seen at poll t was
+//!   published after the poll before), so a count is proven, never guessed;
+//! - **self-exits**: a stage that ended without being killed;
+//! - **restart to first output**: from the restart (or SIGCONT) to the
+//!   stage's first new output message;
+//! - **the robot stops while its command writer is down**: with the servo
+//!   or the mux killed or frozen, the simulated robot's reported speed must
+//!   reach zero within `--stop-deadline-s` and stay there;
+//! - **distance made good** towards the goal, so a robot that never moves
+//!   cannot pass.
+//!
+//! Faults go round the stages in shuffled rounds, each a kill or a freeze at
+//! random, so a short run still faults every stage. The test command runs
+//! two rounds (`tests/chaos.rs`); the long run is
+//! `farsight chaos --faults 100`, which prints the table below and writes
+//! `summary.toml`. It exits non-zero when an invariant fails.
+
+use crate::demo::Stage;
+use crate::sim_tuning;
+use anyhow::{bail, Context, Result};
+use farsight_interfaces::clock::{Clock, WallClock};
+use farsight_interfaces::msg::{NavGoal, Pose, VelocityCommand};
+use farsight_interfaces::topics::{self, Topic};
+use farsight_interfaces::transport::any::AnySubscriber;
+use farsight_interfaces::transport::ipc::{Bus, IpcSettings, Subscriber};
+use farsight_sim::rng::SplitMix64;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct ChaosArgs {
+    /// Faults to inject (kills and freezes, one stage at a time).
+    #[arg(long, default_value_t = 100)]
+    pub faults: u32,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    #[arg(long, default_value = "bug-trap")]
+    pub scenario: String,
+    /// Output folder: configs, stage logs, summary.toml.
+    #[arg(long, default_value = "out/chaos")]
+    pub out: PathBuf,
+    /// The simulator's image size (the FITAM model reads 160x96).
+    #[arg(long, default_value_t = 320)]
+    pub width: u32,
+    #[arg(long, default_value_t = 180)]
+    pub height: u32,
+    /// A killed or frozen stage's output must come back within this long.
+    #[arg(long, default_value_t = 60.0)]
+    pub resume_deadline_s: f64,
+    /// The robot must have stopped this long after its command writer
+    /// (servo or mux) went down: command TTL, deceleration and a margin.
+    #[arg(long, default_value_t = 3.0)]
+    pub stop_deadline_s: f64,
+    /// Seconds between one stage's output resuming and the next fault, at
+    /// most (uniformly from a quarter of it).
+    #[arg(long, default_value_t = 3.0)]
+    pub gap_s: f64,
+}
+
+/// The graph's stages in start order, with the topic that shows each is working.
+const STAGES: [(&str, &str); 6] = [
+    ("inference", "perception/front/far_field"),
+    ("bin-projection", "bins/polar"),
+    ("costmap-fusion", "costmap/fused"),
+    ("subgoal-selection", "nav/path/planned"),
+    ("velocity-servoing", "cmd/autonomy"),
+    ("command-mux", "cmd/velocity"),
+];
+
+/// The servo's stale-input deadline and command TTL in this graph.
+const SERVO_DEADLINE_S: f64 = 2.0;
+const COMMAND_TTL_S: f64 = 0.25;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Fault {
+    Kill,
+    Freeze,
+}
+
+/// One stage process, restartable.
+struct StageProc {
+    name: &'static str,
+    config: PathBuf,
+    child: Option<Stage>,
+    output: AnySubscriber,
+    kills: u32,
+    freezes: u32,
+    self_exits: u32,
+}
+
+/// What the run measured.
+#[derive(Debug, Default)]
+pub struct ChaosReport {
+    pub faults: u32,
+    /// Per stage: (name, kills, freezes, self-exits, resume times in s).
+    pub stages: Vec<(String, u32, u32, u32, Vec<f64>)>,
+    pub moving_commands: u64,
+    pub stale_moving_servo: u64,
+    pub stale_moving_mux: u64,
+    pub oldest_moving_age_s: f64,
+    /// Per command-writer outage: seconds until the robot stood still
+    /// (None: it never did before the writer came back).
+    pub stops_s: Vec<Option<f64>>,
+    /// Poses with the robot moving after it had stopped, writer still down.
+    pub moved_while_down: u64,
+    pub not_resumed: Vec<String>,
+    /// Distance made good towards the goal, over every episode.
+    pub made_good_m: f64,
+    /// Episodes driven: the scenario starts again when the goal is reached.
+    pub episodes: u32,
+    pub wall_s: f64,
+}
+
+/// How much nearer the goal the robot got in an episode.
+fn progress_m(goal: Option<[f64; 2]>, first: Option<[f64; 2]>, last: Option<&Pose>) -> Result<f64> {
+    let goal = goal.context("the simulator published no goal")?;
+    let (Some(first), Some(last)) = (first, last) else {
+        return Ok(0.0);
+    };
+    let d = |p: [f64; 2]| (goal[0] - p[0]).hypot(goal[1] - p[1]);
+    Ok(d(first) - d([last.position_m[0], last.position_m[1]]))
+}
+
+impl ChaosReport {
+    pub fn distance_made_good_m(&self) -> f64 {
+        self.made_good_m
+    }
+
+    pub fn self_exits(&self) -> u32 {
+        self.stages.iter().map(|s| s.3).sum()
+    }
+
+    /// The invariants, each failure named.
+    pub fn failures(&self, stop_deadline_s: f64) -> Vec<String> {
+        let mut f = Vec::new();
+        if self.stale_moving_servo + self.stale_moving_mux > 0 {
+            f.push(format!(
+                "{} moving commands from stale sources (servo {}, mux {})",
+                self.stale_moving_servo + self.stale_moving_mux,
+                self.stale_moving_servo,
+                self.stale_moving_mux
+            ));
+        }
+        if self.self_exits() > 0 {
+            f.push(format!("{} stages exited on their own", self.self_exits()));
+        }
+        for s in &self.not_resumed {
+            f.push(format!("{s}: output did not resume"));
+        }
+        let late = self
+            .stops_s
+            .iter()
+            .filter(|s| s.is_none_or(|t| t > stop_deadline_s))
+            .count();
+        if late > 0 {
+            f.push(format!(
+                "{late} of {} command-writer outages: the robot did not stop within {stop_deadline_s} s",
+                self.stops_s.len()
+            ));
+        }
+        if self.moved_while_down > 0 {
+            f.push(format!(
+                "the robot moved again {} times while its command writer was down",
+                self.moved_while_down
+            ));
+        }
+        if self.distance_made_good_m() < 5.0 {
+            f.push(format!(
+                "{:.1} m made good towards the goal (want at least 5 m)",
+                self.distance_made_good_m()
+            ));
+        }
+        f
+    }
+
+    /// The table `farsight chaos` prints.
+    pub fn table(&self) -> String {
+        let mut t = String::new();
+        t += "| stage | kills | freezes | self-exits | resume median (s) | resume max (s) |\n";
+        t += "|---|---|---|---|---|---|\n";
+        for (name, kills, freezes, exits, resumes) in &self.stages {
+            let (median, max) = median_max(resumes);
+            t += &format!("| {name} | {kills} | {freezes} | {exits} | {median} | {max} |\n");
+        }
+        let stops: Vec<f64> = self.stops_s.iter().flatten().copied().collect();
+        let (stop_median, stop_max) = median_max(&stops);
+        t += &format!(
+            "\nfaults {}; moving commands {}; stale moving commands: servo {}, mux {} \
+             (oldest moving command's capture {:.2} s old at publish, deadline {} s); \
+             self-exits {}; robot stop after its command writer went down: median {} s, max {} s \
+             over {} outages, {} never stopped, {} moved again while down; \
+             distance made good {:.1} m over {} episodes in {:.0} s\n",
+            self.faults,
+            self.moving_commands,
+            self.stale_moving_servo,
+            self.stale_moving_mux,
+            self.oldest_moving_age_s,
+            SERVO_DEADLINE_S,
+            self.self_exits(),
+            stop_median,
+            stop_max,
+            self.stops_s.len(),
+            self.stops_s.iter().filter(|s| s.is_none()).count(),
+            self.moved_while_down,
+            self.distance_made_good_m(),
+            self.episodes,
+            self.wall_s
+        );
+        t
+    }
+
+    /// The summary as TOML (through the serializer).
+    pub fn to_toml(&self) -> Result<String> {
+        let mut root = toml::Table::new();
+        let mut put = |k: &str, v: toml::Value| {
+            root.insert(k.into(), v);
+        };
+        put("faults", (self.faults as i64).into());
+        put("moving_commands", (self.moving_commands as i64).into());
+        put(
+            "stale_moving_servo",
+            (self.stale_moving_servo as i64).into(),
+        );
+        put("stale_moving_mux", (self.stale_moving_mux as i64).into());
+        put("oldest_moving_age_s", self.oldest_moving_age_s.into());
+        put("self_exits", (self.self_exits() as i64).into());
+        put("moved_while_down", (self.moved_while_down as i64).into());
+        put(
+            "stops_s",
+            toml::Value::Array(
+                self.stops_s
+                    .iter()
+                    .map(|s| s.unwrap_or(-1.0).into())
+                    .collect(),
+            ),
+        );
+        put("distance_made_good_m", self.distance_made_good_m().into());
+        put("episodes", (self.episodes as i64).into());
+        put("wall_s", self.wall_s.into());
+        let mut stages = toml::Table::new();
+        for (name, kills, freezes, exits, resumes) in &self.stages {
+            let mut s = toml::Table::new();
+            s.insert("kills".into(), (*kills as i64).into());
+            s.insert("freezes".into(), (*freezes as i64).into());
+            s.insert("self_exits".into(), (*exits as i64).into());
+            s.insert(
+                "resume_s".into(),
+                toml::Value::Array(resumes.iter().map(|&r| r.into()).collect()),
+            );
+            stages.insert(name.clone(), s.into());
+        }
+        root.insert("stages".into(), stages.into());
+        Ok(toml::to_string(&root)?)
+    }
+}
+
+fn median_max(v: &[f64]) -> (String, String) {
+    if v.is_empty() {
+        return ("-".into(), "-".into());
+    }
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    (
+        format!("{:.3}", s[s.len() / 2]),
+        format!("{:.3}", s[s.len() - 1]),
+    )
+}
+
+/// The graph's configs: FITAM as the demo runs it, on the wall clock, the
+/// servo behind the mux.
+fn configs() -> Result<Vec<(&'static str, String)>> {
+    let model = sim_tuning::shipped_model(sim_tuning::FITAM_MODEL)?;
+    let quoted = toml::Value::String(model.canonicalize()?.display().to_string());
+    let mut fusion = sim_tuning::fitam_costmap_fusion();
+    fusion.clock = farsight_stage::ClockSource::Wall;
+    fusion.publish_rate_hz = 5.0;
+    let mut planner = sim_tuning::dstar_subgoal_selection();
+    planner.clock = farsight_stage::ClockSource::Wall;
+    planner.replan_rate_hz = 5.0;
+    let mut servo = sim_tuning::dstar_servo();
+    servo.clock = farsight_stage::ClockSource::Wall;
+    servo.output_rate_hz = 20.0;
+    servo.subgoal_deadline_s = SERVO_DEADLINE_S;
+    servo.command_ttl_s = COMMAND_TTL_S;
+    servo.command_topic = "cmd/autonomy".into();
+    Ok(vec![
+        (
+            "inference",
+            format!("camera = \"front\"\nbackend = \"onnx\"\nmodel_config = {quoted}\n"),
+        ),
+        (
+            "bin-projection",
+            "method = \"fitam\"\ncameras = [\"front\"]\n".into(),
+        ),
+        ("costmap-fusion", sim_tuning::to_toml(&fusion)?),
+        ("subgoal-selection", sim_tuning::to_toml(&planner)?),
+        ("velocity-servoing", sim_tuning::to_toml(&servo)?),
+        ("command-mux", String::new()),
+    ])
+}
+
+/// Starts a stage and waits for its "ready" line; its log appends.
+fn start(name: &'static str, config: &Path, prefix: &str, out: &Path) -> Result<Stage> {
+    let log = out.join(format!("{name}.log"));
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log)?;
+    let mut stage = crate::demo::start_logging(name, config, prefix, file)?;
+    let mut ready = String::new();
+    BufReader::new(stage.0.stdout.take().expect("piped")).read_line(&mut ready)?;
+    if ready.trim() != format!("{name} ready") {
+        bail!("farsight-{name} did not start; see {}", log.display());
+    }
+    Ok(stage)
+}
+
+fn signal(stage: &Stage, sig: libc::c_int) {
+    // SAFETY: kill(2) on our own child's pid; no memory is involved.
+    unsafe {
+        libc::kill(stage.0.id() as libc::pid_t, sig);
+    }
+}
+
+/// Where a fault stands.
+enum Phase {
+    /// Waiting until `at` to inject the next fault.
+    Quiet { at: Instant },
+    /// Stage `k` is down (killed or frozen) until `until`.
+    Down {
+        k: usize,
+        fault: Fault,
+        until: Instant,
+    },
+    /// Stage `k` is back (restarted or continued) at `since`; waiting for
+    /// its first new output.
+    Resuming { k: usize, since: Instant },
+}
+
+/// The robot's speed watch while its command writer is down.
+struct Outage {
+    since: Instant,
+    stopped_at: Option<Instant>,
+}
+
+pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
+    std::fs::create_dir_all(&a.out)?;
+    let out = std::fs::canonicalize(&a.out)?;
+    let prefix = std::env::var("FARSIGHT_IPC_PREFIX")
+        .unwrap_or_else(|_| format!("chaos{}_", std::process::id()));
+    // The stages inherit this process's environment (FARSIGHT_IPC_ROOT
+    // included): the monitor must open the same iceoryx2 root.
+    let mut settings = IpcSettings::from_env();
+    settings.prefix = Some(prefix.clone());
+    let bus = Bus::open_with("chaos", &settings)?;
+    let mut stages = Vec::new();
+    for (name, text) in configs()? {
+        let config = out.join(format!("{name}.toml"));
+        std::fs::write(&config, text)?;
+        let _ = std::fs::remove_file(out.join(format!("{name}.log")));
+        let output_topic = STAGES.iter().find(|s| s.0 == name).expect("listed").1;
+        let child = start(name, &config, &prefix, &out)?;
+        stages.push(StageProc {
+            name,
+            config,
+            child: Some(child),
+            output: AnySubscriber::open(&bus, output_topic)?,
+            kills: 0,
+            freezes: 0,
+            self_exits: 0,
+        });
+    }
+    let servo_out: Subscriber<VelocityCommand> = bus.subscriber(&Topic::new("cmd/autonomy")?)?;
+    let mux_out = bus.subscriber(&topics::velocity_command())?;
+    let poses: Subscriber<Pose> = bus.subscriber(&topics::pose())?;
+    let goals: Subscriber<NavGoal> = bus.subscriber(&topics::goal())?;
+
+    // The simulator, in real time; a robot that reaches the goal starts
+    // the scenario again (an episode), so the faults go on.
+    let start_sim = |episode: u32| -> Result<Stage> {
+        let sim_log = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(out.join("sim.log"))?;
+        let sim = Command::new(crate::demo::sibling("farsight-sim")?)
+            .args(["run", "--clock", "realtime", "--scenario", &a.scenario])
+            .args(["--seed", &a.seed.to_string(), "--max-time-s", "100000"])
+            .args(["--width", &a.width.to_string()])
+            .args(["--height", &a.height.to_string(), "--out"])
+            .arg(out.join(format!("sim-{episode}")))
+            .env("FARSIGHT_IPC_PREFIX", &prefix)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(sim_log)
+            .spawn()
+            .context("starting farsight-sim")?;
+        Ok(Stage(sim))
+    };
+    let mut episode = 1;
+    let mut sim = start_sim(episode)?;
+    let mut made_good_m = 0.0;
+
+    let mut rng = SplitMix64::new(a.seed ^ 0xc4a05);
+    let mut report = ChaosReport::default();
+    let start_wall = Instant::now();
+    let mut goal: Option<[f64; 2]> = None;
+    let mut first_pose: Option<[f64; 2]> = None;
+    let mut last_pose: Option<Pose> = None;
+    // Warm-up: the robot has to be driving before the first fault.
+    let mut phase = Phase::Quiet {
+        at: Instant::now() + Duration::from_secs(5),
+    };
+    let mut outage: Option<Outage> = None;
+    let mut order: Vec<usize> = Vec::new();
+    let mut last_poll = Instant::now();
+    let mut done_at: Option<Instant> = None;
+    let writer = |k: usize| matches!(STAGES[k].0, "velocity-servoing" | "command-mux");
+    loop {
+        let now = Instant::now();
+        let now_ns = WallClock.now_ns();
+        let gap_s = now.duration_since(last_poll).as_secs_f64();
+        last_poll = now;
+
+        // The commands: moving ones judged on their capture times. A
+        // message first seen now was published after the previous poll, so
+        // its age then was at least its age now minus the gap.
+        let moving_age_s = |c: &VelocityCommand| {
+            (c.linear_mps != 0.0 || c.angular_radps != 0.0)
+                .then(|| now_ns.saturating_sub(c.stamp.capture_time_ns) as f64 * 1e-9 - gap_s)
+        };
+        for (sub, allowed_s, is_servo) in [
+            (&servo_out, SERVO_DEADLINE_S, true),
+            (&mux_out, SERVO_DEADLINE_S + COMMAND_TTL_S, false),
+        ] {
+            while let Some(c) = sub.latest()? {
+                let Some(age_s) = moving_age_s(&c) else {
+                    continue;
+                };
+                report.moving_commands += 1;
+                report.oldest_moving_age_s = report.oldest_moving_age_s.max(age_s);
+                if age_s > allowed_s {
+                    tracing::warn!(age_s, ?c, is_servo, "moving command from a stale source");
+                    if is_servo {
+                        report.stale_moving_servo += 1;
+                    } else {
+                        report.stale_moving_mux += 1;
+                    }
+                }
+            }
+        }
+        if let Some(g) = goals.latest()? {
+            goal = Some([g.x_m, g.y_m]);
+        }
+        while let Some(p) = poses.latest()? {
+            first_pose.get_or_insert([p.position_m[0], p.position_m[1]]);
+            if let Some(o) = &mut outage {
+                let moving = p.linear_mps.abs() > 0.01 || p.angular_radps.abs() > 0.01;
+                match (o.stopped_at, moving) {
+                    (None, false) => o.stopped_at = Some(now),
+                    (Some(_), true) => report.moved_while_down += 1,
+                    _ => {}
+                }
+            }
+            last_pose = Some(p);
+        }
+        // Stages that ended on their own are counted and started again.
+        for (k, s) in stages.iter_mut().enumerate() {
+            let ended = s
+                .child
+                .as_mut()
+                .is_some_and(|c| matches!(c.0.try_wait(), Ok(Some(_))));
+            let is_down = matches!(phase, Phase::Down { k: d, fault: Fault::Kill, .. } if d == k);
+            if ended && !is_down {
+                s.self_exits += 1;
+                tracing::error!(stage = s.name, "exited on its own; restarting");
+                s.child = Some(start(s.name, &s.config, &prefix, &out)?);
+            }
+        }
+        // The fault schedule.
+        phase = match phase {
+            Phase::Quiet { at } if now >= at && done_at.is_none() => {
+                if report.faults >= a.faults {
+                    done_at = Some(now);
+                    Phase::Quiet { at }
+                } else {
+                    // Rounds over every stage in a shuffled order, so a
+                    // short run still faults each one.
+                    if order.is_empty() {
+                        order = (0..STAGES.len()).collect();
+                        for i in (1..order.len()).rev() {
+                            let j = (rng.unit() * (i + 1) as f64) as usize % (i + 1);
+                            order.swap(i, j);
+                        }
+                    }
+                    let k = order.pop().expect("refilled");
+                    let fault = if rng.unit() < 0.5 {
+                        Fault::Kill
+                    } else {
+                        Fault::Freeze
+                    };
+                    let s = &mut stages[k];
+                    let child = s.child.as_ref().expect("running");
+                    match fault {
+                        Fault::Kill => {
+                            signal(child, libc::SIGKILL);
+                            s.kills += 1;
+                        }
+                        Fault::Freeze => {
+                            signal(child, libc::SIGSTOP);
+                            s.freezes += 1;
+                        }
+                    }
+                    report.faults += 1;
+                    eprintln!(
+                        "fault {}/{}: {:?} {} ({:.0} s)",
+                        report.faults,
+                        a.faults,
+                        fault,
+                        s.name,
+                        start_wall.elapsed().as_secs_f64()
+                    );
+                    if writer(k) {
+                        outage = Some(Outage {
+                            since: now,
+                            stopped_at: None,
+                        });
+                    }
+                    // A command writer stays down long enough for the robot
+                    // to have to stop.
+                    let down_s = if writer(k) {
+                        a.stop_deadline_s + 0.5 + rng.unit()
+                    } else {
+                        0.5 + rng.unit() * 2.5
+                    };
+                    Phase::Down {
+                        k,
+                        fault,
+                        until: now + Duration::from_secs_f64(down_s),
+                    }
+                }
+            }
+            Phase::Down {
+                k, fault, until, ..
+            } if now >= until => {
+                let s = &mut stages[k];
+                match fault {
+                    Fault::Kill => {
+                        // Reap the killed process, then start a new one.
+                        if let Some(mut old) = s.child.take() {
+                            let _ = old.0.wait();
+                            // Dropping would signal a pid that is no longer
+                            // ours; the handle holds no pipes (stdout taken).
+                            std::mem::forget(old);
+                        }
+                        s.child = Some(start(s.name, &s.config, &prefix, &out)?);
+                    }
+                    Fault::Freeze => signal(s.child.as_ref().expect("running"), libc::SIGCONT),
+                }
+                // Messages from before the restart do not count as output.
+                while s.output.take_wire()?.is_some() {}
+                if let Some(o) = outage.take() {
+                    report.stops_s.push(
+                        o.stopped_at
+                            .map(|t| t.duration_since(o.since).as_secs_f64()),
+                    );
+                }
+                Phase::Resuming {
+                    k,
+                    since: Instant::now(),
+                }
+            }
+            Phase::Resuming { k, since } => {
+                if stages[k].output.take_wire()?.is_some() {
+                    let resumed_s = since.elapsed().as_secs_f64();
+                    let entry = &mut resumes_for(&mut report, stages[k].name);
+                    entry.push(resumed_s);
+                    let wait = a.gap_s * (0.25 + 0.75 * rng.unit());
+                    Phase::Quiet {
+                        at: Instant::now() + Duration::from_secs_f64(wait),
+                    }
+                } else if since.elapsed().as_secs_f64() > a.resume_deadline_s {
+                    report.not_resumed.push(stages[k].name.to_string());
+                    Phase::Quiet { at: Instant::now() }
+                } else {
+                    Phase::Resuming { k, since }
+                }
+            }
+            other => other,
+        };
+        // Drain the other stages' outputs so a resume is judged on new messages.
+        for (k, s) in stages.iter().enumerate() {
+            let resuming = matches!(phase, Phase::Resuming { k: r, .. } if r == k);
+            if !resuming {
+                while s.output.take_wire()?.is_some() {}
+            }
+        }
+        if done_at.is_some_and(|t| t.elapsed() > Duration::from_secs(2)) {
+            break;
+        }
+        if let Ok(Some(status)) = sim.0.try_wait() {
+            if !status.success() {
+                bail!(
+                    "farsight-sim failed ({status}); see {}",
+                    out.join("sim.log").display()
+                );
+            }
+            // The goal is reached: count the episode's progress, drive it again.
+            made_good_m += progress_m(goal, first_pose, last_pose.as_ref())?;
+            (first_pose, last_pose) = (None, None);
+            episode += 1;
+            eprintln!("goal reached; episode {episode}");
+            std::mem::forget(std::mem::replace(&mut sim, start_sim(episode)?));
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    report.wall_s = start_wall.elapsed().as_secs_f64();
+    drop(sim);
+    for s in &mut stages {
+        // A frozen stage would not hear SIGTERM.
+        if let Some(c) = &s.child {
+            signal(c, libc::SIGCONT);
+        }
+        s.child = None;
+    }
+    report.made_good_m = made_good_m + progress_m(goal, first_pose, last_pose.as_ref())?;
+    report.episodes = episode;
+    for s in &stages {
+        let resumes = resumes_for(&mut report, s.name).clone();
+        report.stages.retain(|e| e.0 != s.name);
+        report.stages.push((
+            s.name.to_string(),
+            s.kills,
+            s.freezes,
+            s.self_exits,
+            resumes,
+        ));
+    }
+    std::fs::write(out.join("summary.toml"), report.to_toml()?)?;
+    Ok(report)
+}
+
+/// The resume times recorded so far for `stage`.
+fn resumes_for<'a>(report: &'a mut ChaosReport, stage: &str) -> &'a mut Vec<f64> {
+    if !report.stages.iter().any(|e| e.0 == stage) {
+        report.stages.push((stage.to_string(), 0, 0, 0, Vec::new()));
+    }
+    &mut report
+        .stages
+        .iter_mut()
+        .find(|e| e.0 == stage)
+        .expect("just added")
+        .4
+}
+
+/// `farsight chaos`: runs, prints the table, fails on a broken invariant.
+pub fn main(a: ChaosArgs) -> Result<()> {
+    let report = run(&a)?;
+    print!("{}", report.table());
+    println!("summary, configs and logs in {}", a.out.display());
+    let failures = report.failures(a.stop_deadline_s);
+    if !failures.is_empty() {
+        bail!(
+            "motion safety under faults failed:\n- {}",
+            failures.join("\n- ")
+        );
+    }
+    Ok(())
+}
