@@ -96,17 +96,27 @@ struct StageProc {
     config: PathBuf,
     child: Option<Stage>,
     output: AnySubscriber,
-    kills: u32,
-    freezes: u32,
-    self_exits: u32,
+}
+
+/// One stage's faults and how fast its output came back.
+#[derive(Debug, Default, Clone)]
+pub struct StageRecord {
+    pub name: String,
+    pub kills: u32,
+    pub freezes: u32,
+    pub self_exits: u32,
+    /// From the restart command to the first new output, per kill (s).
+    pub restart_s: Vec<f64>,
+    /// From SIGCONT to the first new output, per freeze (s).
+    pub continue_s: Vec<f64>,
 }
 
 /// What the run measured.
 #[derive(Debug, Default)]
 pub struct ChaosReport {
     pub faults: u32,
-    /// Per stage: (name, kills, freezes, self-exits, resume times in s).
-    pub stages: Vec<(String, u32, u32, u32, Vec<f64>)>,
+    /// Per stage, in [`STAGES`] order.
+    pub stages: Vec<StageRecord>,
     pub moving_commands: u64,
     pub stale_moving_servo: u64,
     pub stale_moving_mux: u64,
@@ -140,7 +150,7 @@ impl ChaosReport {
     }
 
     pub fn self_exits(&self) -> u32 {
-        self.stages.iter().map(|s| s.3).sum()
+        self.stages.iter().map(|s| s.self_exits).sum()
     }
 
     /// The invariants, each failure named.
@@ -189,11 +199,15 @@ impl ChaosReport {
     /// The table `farsight chaos` prints.
     pub fn table(&self) -> String {
         let mut t = String::new();
-        t += "| stage | kills | freezes | self-exits | resume median (s) | resume max (s) |\n";
+        t += "| stage | kills | freezes | self-exits | restart to output, median / max (s) | continue to output, median / max (s) |\n";
         t += "|---|---|---|---|---|---|\n";
-        for (name, kills, freezes, exits, resumes) in &self.stages {
-            let (median, max) = median_max(resumes);
-            t += &format!("| {name} | {kills} | {freezes} | {exits} | {median} | {max} |\n");
+        for r in &self.stages {
+            let (rm, rx) = median_max(&r.restart_s);
+            let (cm, cx) = median_max(&r.continue_s);
+            t += &format!(
+                "| {} | {} | {} | {} | {rm} / {rx} | {cm} / {cx} |\n",
+                r.name, r.kills, r.freezes, r.self_exits
+            );
         }
         let stops: Vec<f64> = self.stops_s.iter().flatten().copied().collect();
         let (stop_median, stop_max) = median_max(&stops);
@@ -251,16 +265,15 @@ impl ChaosReport {
         put("episodes", (self.episodes as i64).into());
         put("wall_s", self.wall_s.into());
         let mut stages = toml::Table::new();
-        for (name, kills, freezes, exits, resumes) in &self.stages {
+        let seconds = |v: &[f64]| toml::Value::Array(v.iter().map(|&r| r.into()).collect());
+        for r in &self.stages {
             let mut s = toml::Table::new();
-            s.insert("kills".into(), (*kills as i64).into());
-            s.insert("freezes".into(), (*freezes as i64).into());
-            s.insert("self_exits".into(), (*exits as i64).into());
-            s.insert(
-                "resume_s".into(),
-                toml::Value::Array(resumes.iter().map(|&r| r.into()).collect()),
-            );
-            stages.insert(name.clone(), s.into());
+            s.insert("kills".into(), (r.kills as i64).into());
+            s.insert("freezes".into(), (r.freezes as i64).into());
+            s.insert("self_exits".into(), (r.self_exits as i64).into());
+            s.insert("restart_s".into(), seconds(&r.restart_s));
+            s.insert("continue_s".into(), seconds(&r.continue_s));
+            stages.insert(r.name.clone(), s.into());
         }
         root.insert("stages".into(), stages.into());
         Ok(toml::to_string(&root)?)
@@ -347,7 +360,11 @@ enum Phase {
     },
     /// Stage `k` is back (restarted or continued) at `since`; waiting for
     /// its first new output.
-    Resuming { k: usize, since: Instant },
+    Resuming {
+        k: usize,
+        fault: Fault,
+        since: Instant,
+    },
 }
 
 /// The robot's speed watch while its command writer is down.
@@ -378,9 +395,6 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
             config,
             child: Some(child),
             output: AnySubscriber::open(&bus, output_topic)?,
-            kills: 0,
-            freezes: 0,
-            self_exits: 0,
         });
     }
     let servo_out: Subscriber<VelocityCommand> = bus.subscriber(&Topic::new("cmd/autonomy")?)?;
@@ -395,18 +409,19 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
             .create(true)
             .append(true)
             .open(out.join("sim.log"))?;
-        let sim = Command::new(crate::demo::sibling("farsight-sim")?)
-            .args(["run", "--clock", "realtime", "--scenario", &a.scenario])
-            .args(["--seed", &a.seed.to_string(), "--max-time-s", "100000"])
-            .args(["--width", &a.width.to_string()])
-            .args(["--height", &a.height.to_string(), "--out"])
-            .arg(out.join(format!("sim-{episode}")))
-            .env("FARSIGHT_IPC_PREFIX", &prefix)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(sim_log)
-            .spawn()
-            .context("starting farsight-sim")?;
+        let sim =
+            crate::demo::die_with_parent(&mut Command::new(crate::demo::sibling("farsight-sim")?))
+                .args(["run", "--clock", "realtime", "--scenario", &a.scenario])
+                .args(["--seed", &a.seed.to_string(), "--max-time-s", "100000"])
+                .args(["--width", &a.width.to_string()])
+                .args(["--height", &a.height.to_string(), "--out"])
+                .arg(out.join(format!("sim-{episode}")))
+                .env("FARSIGHT_IPC_PREFIX", &prefix)
+                .stdin(Stdio::null())
+                .stdout(Stdio::null())
+                .stderr(sim_log)
+                .spawn()
+                .context("starting farsight-sim")?;
         Ok(Stage(sim))
     };
     let mut episode = 1;
@@ -414,7 +429,16 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
     let mut made_good_m = 0.0;
 
     let mut rng = SplitMix64::new(a.seed ^ 0xc4a05);
-    let mut report = ChaosReport::default();
+    let mut report = ChaosReport {
+        stages: STAGES
+            .iter()
+            .map(|(name, _)| StageRecord {
+                name: name.to_string(),
+                ..Default::default()
+            })
+            .collect(),
+        ..Default::default()
+    };
     let start_wall = Instant::now();
     let mut goal: Option<[f64; 2]> = None;
     let mut first_pose: Option<[f64; 2]> = None;
@@ -484,7 +508,7 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
                 .is_some_and(|c| matches!(c.0.try_wait(), Ok(Some(_))));
             let is_down = matches!(phase, Phase::Down { k: d, fault: Fault::Kill, .. } if d == k);
             if ended && !is_down {
-                s.self_exits += 1;
+                report.stages[k].self_exits += 1;
                 tracing::error!(stage = s.name, "exited on its own; restarting");
                 s.child = Some(start(s.name, &s.config, &prefix, &out)?);
             }
@@ -516,11 +540,11 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
                     match fault {
                         Fault::Kill => {
                             signal(child, libc::SIGKILL);
-                            s.kills += 1;
+                            report.stages[k].kills += 1;
                         }
                         Fault::Freeze => {
                             signal(child, libc::SIGSTOP);
-                            s.freezes += 1;
+                            report.stages[k].freezes += 1;
                         }
                     }
                     report.faults += 1;
@@ -556,6 +580,8 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
                 k, fault, until, ..
             } if now >= until => {
                 let s = &mut stages[k];
+                // Restart to first output counts the restart itself.
+                let since = Instant::now();
                 match fault {
                     Fault::Kill => {
                         // Reap the killed process, then start a new one.
@@ -577,16 +603,16 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
                             .map(|t| t.duration_since(o.since).as_secs_f64()),
                     );
                 }
-                Phase::Resuming {
-                    k,
-                    since: Instant::now(),
-                }
+                Phase::Resuming { k, fault, since }
             }
-            Phase::Resuming { k, since } => {
+            Phase::Resuming { k, fault, since } => {
                 if stages[k].output.take_wire()?.is_some() {
                     let resumed_s = since.elapsed().as_secs_f64();
-                    let entry = &mut resumes_for(&mut report, stages[k].name);
-                    entry.push(resumed_s);
+                    let r = &mut report.stages[k];
+                    match fault {
+                        Fault::Kill => r.restart_s.push(resumed_s),
+                        Fault::Freeze => r.continue_s.push(resumed_s),
+                    }
                     let wait = a.gap_s * (0.25 + 0.75 * rng.unit());
                     Phase::Quiet {
                         at: Instant::now() + Duration::from_secs_f64(wait),
@@ -595,7 +621,7 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
                     report.not_resumed.push(stages[k].name.to_string());
                     Phase::Quiet { at: Instant::now() }
                 } else {
-                    Phase::Resuming { k, since }
+                    Phase::Resuming { k, fault, since }
                 }
             }
             other => other,
@@ -608,6 +634,10 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
             }
         }
         if done_at.is_some_and(|t| t.elapsed() > Duration::from_secs(2)) {
+            break;
+        }
+        if bus.termination_requested() {
+            eprintln!("stopping early: termination requested");
             break;
         }
         if let Ok(Some(status)) = sim.0.try_wait() {
@@ -637,32 +667,8 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
     }
     report.made_good_m = made_good_m + progress_m(goal, first_pose, last_pose.as_ref())?;
     report.episodes = episode;
-    for s in &stages {
-        let resumes = resumes_for(&mut report, s.name).clone();
-        report.stages.retain(|e| e.0 != s.name);
-        report.stages.push((
-            s.name.to_string(),
-            s.kills,
-            s.freezes,
-            s.self_exits,
-            resumes,
-        ));
-    }
     std::fs::write(out.join("summary.toml"), report.to_toml()?)?;
     Ok(report)
-}
-
-/// The resume times recorded so far for `stage`.
-fn resumes_for<'a>(report: &'a mut ChaosReport, stage: &str) -> &'a mut Vec<f64> {
-    if !report.stages.iter().any(|e| e.0 == stage) {
-        report.stages.push((stage.to_string(), 0, 0, 0, Vec::new()));
-    }
-    &mut report
-        .stages
-        .iter_mut()
-        .find(|e| e.0 == stage)
-        .expect("just added")
-        .4
 }
 
 /// `farsight chaos`: runs, prints the table, fails on a broken invariant.

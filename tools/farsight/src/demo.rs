@@ -102,6 +102,23 @@ fn start(name: &'static str, config: &Path, prefix: &str, log: &Path) -> Result<
     start_logging(name, config, prefix, std::fs::File::create(log)?)
 }
 
+/// Has the child get SIGTERM when this process dies, however it dies
+/// (SIGKILL included): a demo or chaos run that is killed leaves no stages
+/// behind to eat the machine.
+pub(crate) fn die_with_parent(cmd: &mut Command) -> &mut Command {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: prctl is async-signal-safe and touches no memory of the
+    // parent; it runs in the forked child before exec.
+    unsafe {
+        cmd.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) == -1 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        })
+    }
+}
+
 /// Starts a stage with its stderr into `log_file` (a restarted stage's log
 /// goes on in the same file); its stdout stays piped for the ready line.
 pub(crate) fn start_logging(
@@ -110,7 +127,7 @@ pub(crate) fn start_logging(
     prefix: &str,
     log_file: std::fs::File,
 ) -> Result<Stage> {
-    let child = Command::new(sibling(&format!("farsight-{name}"))?)
+    let child = die_with_parent(&mut Command::new(sibling(&format!("farsight-{name}"))?))
         .arg("--config")
         .arg(config)
         .env("FARSIGHT_IPC_PREFIX", prefix)
