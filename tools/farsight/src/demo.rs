@@ -13,6 +13,7 @@ use clap::Args;
 use farsight_interfaces::msg::{
     CommandReason, GoalKind, HealthState, NavGoal, PixelEncoding, Pose,
 };
+use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{Bus, IpcSettings};
 use farsight_interfaces::transport::net::NetBus;
@@ -169,7 +170,9 @@ pub fn run(a: DemoArgs) -> Result<()> {
     std::fs::write(
         &ingest_cfg,
         format!(
-            "# ORFD camera (calib/cam_K), mounted 1.6 m up, looking ahead.\n[[cameras]]\nfolder = {:?}\nrate_hz = {}\nloops = {}\npace_by = \"perception/front/navigability\"\n\n\
+            "# ORFD camera (calib/cam_K), mounted 1.6 m up, looking ahead.\n[[cameras]]\nfolder = {:?}\nrate_hz = {}\nloops = {}\npace_by = \"perception/front/navigability\"\n\
+             # recorded frames, stamped as they go out: the graph runs on the wall clock\n\
+             capture_time = \"publish\"\n\n\
              [cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\nxyz_m = [0.0, 0.0, 1.6]\n",
             frames.display().to_string(),
             a.rate_hz,
@@ -269,7 +272,12 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let (mut received, mut bytes, mut last_health, mut camera) = (0u64, 0usize, None, None);
     let deadline = Instant::now() + Duration::from_secs(60);
     while received < expected && Instant::now() < deadline {
-        pose_pub.publish(&Pose::default())?;
+        // Stamped now, as a localisation stack would: the stages judge
+        // the pose's age on its capture time.
+        pose_pub.publish(&Pose {
+            stamp: farsight_interfaces::msg::Stamp::new(0, WallClock.now_ns()),
+            ..Default::default()
+        })?;
         goal_pub.deliver_history()?;
         // The laptop samples the newest command (zenoh keeps only the latest).
         if let Some(c) = commands.latest()? {
