@@ -463,14 +463,25 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
             let goal_robot = [distance * bearing.cos(), distance * bearing.sin()];
             let goal = p.to_world_frame(goal_robot);
             if let MapPlanner::DStarLite(pl) = &mut planner {
-                if pl.as_ref().is_none_or(|pl| {
+                let new_goal = pl.as_ref().is_none_or(|pl| {
                     let g = pl.goal_m();
                     (g[0] - goal[0]).hypot(g[1] - goal[1]) > config.planner.resolution_m
-                }) {
+                });
+                // A robot that left the grid (relocalised, carried, a
+                // simulator started over) gets a grid around where it is.
+                let left_grid = pl.as_ref().is_some_and(|pl| !pl.contains(robot));
+                if new_goal || left_grid {
                     tracing::info!(
                         goal_x_m = goal[0],
                         goal_y_m = goal[1],
-                        "new goal: planning grid built"
+                        robot_x_m = robot[0],
+                        robot_y_m = robot[1],
+                        "{}: planning grid built",
+                        if new_goal {
+                            "new goal"
+                        } else {
+                            "the robot left the grid"
+                        }
                     );
                     *pl = Some(WorldPlanner::new(robot, goal, &config.planner));
                     dirty = true;

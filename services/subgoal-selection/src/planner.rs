@@ -167,6 +167,11 @@ impl WorldPlanner {
         self.goal_m
     }
 
+    /// Whether world point `p_m` is on the planning grid.
+    pub fn contains(&self, p_m: [f64; 2]) -> bool {
+        self.cell(p_m).is_some()
+    }
+
     fn cell(&self, p: [f64; 2]) -> Option<(usize, usize)> {
         let g = self.dstar.grid();
         let x = ((p[0] - self.origin_m[0]) / self.resolution_m).round();
@@ -258,6 +263,18 @@ impl WorldPlanner {
 mod tests {
     use super::*;
     use farsight_interfaces::msg::{CostmapLayer, Stamp};
+
+    #[test]
+    fn the_grid_spans_start_and_goal_with_the_margin_and_nothing_beyond() {
+        let cfg = WorldPlannerConfig {
+            margin_m: 10.0,
+            ..Default::default()
+        };
+        let pl = WorldPlanner::new([0.0, 0.0], [50.0, 0.0], &cfg);
+        assert!(pl.contains([0.0, 0.0]) && pl.contains([50.0, 0.0]));
+        assert!(pl.contains([-9.0, 9.0]) && pl.contains([59.0, -9.0]));
+        assert!(!pl.contains([-20.0, 0.0]) && !pl.contains([25.0, 30.0]));
+    }
 
     #[test]
     fn a_wall_in_a_costmap_message_bends_the_path() {

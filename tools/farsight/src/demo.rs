@@ -10,10 +10,10 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::msg::{
     CommandReason, GoalKind, HealthState, NavGoal, PixelEncoding, Pose,
 };
-use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{Bus, IpcSettings};
 use farsight_interfaces::transport::net::NetBus;

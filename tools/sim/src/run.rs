@@ -390,6 +390,12 @@ pub fn run(a: RunArgs) -> Result<Summary> {
     }
     let wall_start = Instant::now();
     for k in 1u64.. {
+        if bus.termination_requested() {
+            // SIGTERM/SIGINT (iceoryx2's handler keeps them from ending the
+            // process): stop, leaving the trace and map written.
+            eprintln!("stopped: termination requested");
+            break;
+        }
         let r = episode.robot;
         // Lock-step: the simulated clock (the graph runs on the stamps'
         // clock). Real time: the wall clock, as a robot's camera stamps its
@@ -456,7 +462,9 @@ pub fn run(a: RunArgs) -> Result<Summary> {
                     loop {
                         match commands.latest()? {
                             Some(c) if c.stamp.frame_seq >= k => break Some(c),
-                            _ if Instant::now() >= end => break None,
+                            _ if Instant::now() >= end || bus.termination_requested() => {
+                                break None
+                            }
                             _ => std::thread::sleep(Duration::from_micros(500)),
                         }
                     }
