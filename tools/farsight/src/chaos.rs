@@ -120,7 +120,10 @@ pub struct ChaosReport {
     pub moving_commands: u64,
     pub stale_moving_servo: u64,
     pub stale_moving_mux: u64,
-    pub oldest_moving_age_s: f64,
+    /// The oldest capture behind a moving command at publish: the servo's
+    /// (allowed: its deadline) and the mux's (allowed: deadline plus TTL).
+    pub oldest_moving_servo_s: f64,
+    pub oldest_moving_mux_s: f64,
     /// Per command-writer outage: seconds until the robot stood still
     /// (None: it never did before the writer came back).
     pub stops_s: Vec<Option<f64>>,
@@ -213,7 +216,8 @@ impl ChaosReport {
         let (stop_median, stop_max) = median_max(&stops);
         t += &format!(
             "\nfaults {}; moving commands {}; stale moving commands: servo {}, mux {} \
-             (oldest moving command's capture {:.2} s old at publish, deadline {} s); \
+             (oldest capture behind a moving command at publish: servo {:.2} s, allowed {} s; \
+             mux {:.2} s, allowed {} s); \
              self-exits {}; robot stop after its command writer went down: median {} s, max {} s \
              over {} outages, {} never stopped, {} moved again while down; \
              distance made good {:.1} m over {} episodes in {:.0} s\n",
@@ -221,8 +225,10 @@ impl ChaosReport {
             self.moving_commands,
             self.stale_moving_servo,
             self.stale_moving_mux,
-            self.oldest_moving_age_s,
+            self.oldest_moving_servo_s,
             SERVO_DEADLINE_S,
+            self.oldest_moving_mux_s,
+            SERVO_DEADLINE_S + COMMAND_TTL_S,
             self.self_exits(),
             stop_median,
             stop_max,
@@ -249,7 +255,8 @@ impl ChaosReport {
             (self.stale_moving_servo as i64).into(),
         );
         put("stale_moving_mux", (self.stale_moving_mux as i64).into());
-        put("oldest_moving_age_s", self.oldest_moving_age_s.into());
+        put("oldest_moving_servo_s", self.oldest_moving_servo_s.into());
+        put("oldest_moving_mux_s", self.oldest_moving_mux_s.into());
         put("self_exits", (self.self_exits() as i64).into());
         put("moved_while_down", (self.moved_while_down as i64).into());
         put(
@@ -474,7 +481,12 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
                     continue;
                 };
                 report.moving_commands += 1;
-                report.oldest_moving_age_s = report.oldest_moving_age_s.max(age_s);
+                let oldest = if is_servo {
+                    &mut report.oldest_moving_servo_s
+                } else {
+                    &mut report.oldest_moving_mux_s
+                };
+                *oldest = oldest.max(age_s);
                 if age_s > allowed_s {
                     tracing::warn!(age_s, ?c, is_servo, "moving command from a stale source");
                     if is_servo {
