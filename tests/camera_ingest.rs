@@ -20,7 +20,8 @@ fn model(name: &str, w: u32, h: u32, yaw: f64) -> String {
 #[test]
 fn two_cameras_stream_and_broken_files_are_skipped() {
     let ns = Namespace::new("ingest2cam");
-    // The rear camera's folder: good, truncated, wrong size, good (JPEG).
+    // The rear camera's folder: good, truncated, wrong size, good (JPEG),
+    // the bad corpus, good.
     let rear_dir = ns.root.join("rear");
     std::fs::create_dir_all(&rear_dir).unwrap();
     let h = ImageHeader::packed(Stamp::default(), 0, 64, 48, PixelEncoding::RGB8);
@@ -33,11 +34,34 @@ fn two_cameras_stream_and_broken_files_are_skipped() {
         farsight_imaging::encode_png(&small, &vec![0u8; 32 * 48 * 3]).unwrap(),
     )
     .unwrap();
-    std::fs::write(
-        rear_dir.join("1000000000004.jpg"),
-        farsight_imaging::encode_jpeg(&h, &vec![80u8; 64 * 48 * 3], 90).unwrap(),
-    )
-    .unwrap();
+    let jpeg = farsight_imaging::encode_jpeg(&h, &vec![80u8; 64 * 48 * 3], 90).unwrap();
+    std::fs::write(rear_dir.join("1000000000004.jpg"), &jpeg).unwrap();
+    // Then the bad corpus: images declaring 100000x100000 and 16000x16000
+    // (refused from the header, never allocated), empty, text, and JPEGs
+    // cut short (which the decoder alone would grey-fill and return).
+    let bad = repo_root().join("tests/fixtures/bad-images");
+    for (k, name) in [
+        "bomb-100000x100000.png",
+        "large-16000x16000.png",
+        "empty.png",
+        "text.jpg",
+    ]
+    .iter()
+    .enumerate()
+    {
+        std::fs::copy(
+            bad.join(name),
+            rear_dir.join(format!("100000000001{k}.png")),
+        )
+        .unwrap();
+    }
+    for (k, cut) in [jpeg.len() / 2, jpeg.len() - 2, 1000.min(jpeg.len() - 3)]
+        .iter()
+        .enumerate()
+    {
+        std::fs::write(rear_dir.join(format!("100000000002{k}.jpg")), &jpeg[..*cut]).unwrap();
+    }
+    std::fs::write(rear_dir.join("1000000000030.jpg"), &jpeg).unwrap();
 
     let orfd = repo_root().join("../shared/data/orfd/image_data");
     let cfg = ns.write(
@@ -63,7 +87,7 @@ fn two_cameras_stream_and_broken_files_are_skipped() {
     let mut last_health = None;
     let end = Instant::now() + Duration::from_secs(20);
     while Instant::now() < end
-        && (front_seqs.len() < 6 || rear_caps.len() < 2 || last_health.is_none())
+        && (front_seqs.len() < 6 || rear_caps.len() < 3 || last_health.is_none())
     {
         if let Some(f) = front.latest().unwrap() {
             f.header().validate(f.data().len()).unwrap();
@@ -97,17 +121,29 @@ fn two_cameras_stream_and_broken_files_are_skipped() {
     // The rear stream went on past the broken files: the JPEG after them arrived.
     assert_eq!(
         rear_caps,
-        vec![1_000_000_000_001_000_000, 1_000_000_000_004_000_000],
+        vec![
+            1_000_000_000_001_000_000,
+            1_000_000_000_004_000_000,
+            1_000_000_000_030_000_000
+        ],
         "{}",
         stage.stderr_so_far()
     );
     let h = last_health.expect("final health report");
-    assert_eq!((h.messages_out, h.dropped), (8, 2), "{h:?}");
+    assert_eq!((h.messages_out, h.dropped), (9, 9), "{h:?}");
     let errors = stage.stderr_so_far();
     assert!(
         errors.contains("1000000000003.png: image is 32x48, the camera model says 64x48"),
         "{errors}"
     );
+    for refused in [
+        "1000000000010.png: a 100000x100000 image: larger than the 64x48 allowed",
+        "1000000000011.png: a 16000x16000 image",
+        "1000000000020.jpg: jpeg: truncated",
+        "1000000000022.jpg: jpeg: truncated",
+    ] {
+        assert!(errors.contains(refused), "{refused}:\n{errors}");
+    }
     // The rear camera's model travels with its frames: its centre looks backwards.
     let cam = Camera::from_info(&info.expect("rear camera info")).unwrap();
     let b = cam.pixel_bearing_rad(32.0, 24.0).unwrap();

@@ -347,10 +347,18 @@ pub fn read_frame(
         path: p.clone(),
         source,
     })?;
+    // Never larger than the camera: checked from the file's header before
+    // any pixel buffer is allocated.
+    let limits = farsight_imaging::ImageLimits {
+        max_width: width,
+        max_height: height,
+    };
     let (mut h, mut data) =
-        farsight_imaging::decode_image(&bytes).map_err(|source| FrameError::Decode {
-            path: p.clone(),
-            source,
+        farsight_imaging::decode_image_within(&bytes, limits).map_err(|source| {
+            FrameError::Decode {
+                path: p.clone(),
+                source,
+            }
         })?;
     if (h.width, h.height) != (width, height) {
         return Err(FrameError::WrongSize {

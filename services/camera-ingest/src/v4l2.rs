@@ -85,7 +85,11 @@ pub fn convert_frame(
             farsight_imaging::yuyv_to_rgb(&h, data)
         }
         V4l2Format::Mjpeg => {
-            let (h, rgb) = farsight_imaging::decode_jpeg(data)?;
+            let limits = farsight_imaging::ImageLimits {
+                max_width: width,
+                max_height: height,
+            };
+            let (h, rgb) = farsight_imaging::decode_jpeg_within(data, limits)?;
             if (h.width, h.height) != (width, height) {
                 return Err(farsight_imaging::ImageError::Jpeg(format!(
                     "frame is {}x{}, the stream was set up for {width}x{height}",

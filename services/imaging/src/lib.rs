@@ -36,6 +36,13 @@ pub enum ImageError {
     Png(String),
     #[error("jpeg: {0}")]
     Jpeg(String),
+    #[error("a {width}x{height} image: larger than the {max_width}x{max_height} allowed (or empty); refused before decoding")]
+    TooLarge {
+        width: u32,
+        height: u32,
+        max_width: u32,
+        max_height: u32,
+    },
 }
 
 /// Keeps every `factor`-th pixel in both directions (nearest neighbour: cheap,
@@ -185,14 +192,56 @@ pub fn encode_jpeg(header: &ImageHeader, data: &[u8], quality: u8) -> Result<Vec
     Ok(out)
 }
 
+/// The largest image a decoder allocates for: the size in a file's header
+/// is checked against it *before* any pixel buffer exists, so a small file
+/// that declares a huge image (a decompression bomb) is refused, not
+/// allocated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ImageLimits {
+    pub max_width: u32,
+    pub max_height: u32,
+}
+
+impl ImageLimits {
+    /// What [`decode_png`], [`decode_jpeg`] and [`decode_image`] allow:
+    /// 8192 x 8192 (268 MB as RGBA).
+    pub const DEFAULT: Self = Self {
+        max_width: 8192,
+        max_height: 8192,
+    };
+
+    fn check(&self, width: u32, height: u32) -> Result<(), ImageError> {
+        if width == 0 || height == 0 || width > self.max_width || height > self.max_height {
+            return Err(ImageError::TooLarge {
+                width,
+                height,
+                max_width: self.max_width,
+                max_height: self.max_height,
+            });
+        }
+        Ok(())
+    }
+}
+
 /// Decodes a PNG into a packed image (RGB8, RGBA8, MONO8 or little-endian MONO16).
-/// A truncated or corrupt file is an error, never a panic.
+/// A truncated or corrupt file is an error, never a panic; so is one larger
+/// than [`ImageLimits::DEFAULT`].
 pub fn decode_png(bytes: &[u8]) -> Result<(ImageHeader, Vec<u8>), ImageError> {
+    decode_png_within(bytes, ImageLimits::DEFAULT)
+}
+
+/// [`decode_png`] with the size checked against `limits` before decoding.
+pub fn decode_png_within(
+    bytes: &[u8],
+    limits: ImageLimits,
+) -> Result<(ImageHeader, Vec<u8>), ImageError> {
     let mut decoder = png::Decoder::new(std::io::Cursor::new(bytes));
     decoder.set_transformations(png::Transformations::EXPAND);
     let mut reader = decoder
         .read_info()
         .map_err(|e| ImageError::Png(e.to_string()))?;
+    let (w, h) = (reader.info().width, reader.info().height);
+    limits.check(w, h)?;
     let size = reader
         .output_buffer_size()
         .ok_or_else(|| ImageError::Png("image too large".into()))?;
@@ -223,9 +272,30 @@ pub fn decode_png(bytes: &[u8]) -> Result<(ImageHeader, Vec<u8>), ImageError> {
 }
 
 /// Decodes a JPEG (a file, or one MJPEG frame from a camera) into packed RGB8.
-/// A truncated or corrupt stream is an error, never a panic.
+/// A truncated stream (no end-of-image marker) or a corrupt header is an
+/// error, never a panic; so is one larger than [`ImageLimits::DEFAULT`].
+/// (Bit errors inside the entropy-coded data cannot be told from image
+/// content: JPEG carries no checksum, and the decoder fills what it cannot
+/// read.)
 pub fn decode_jpeg(bytes: &[u8]) -> Result<(ImageHeader, Vec<u8>), ImageError> {
+    decode_jpeg_within(bytes, ImageLimits::DEFAULT)
+}
+
+/// [`decode_jpeg`] with the size checked against `limits` before decoding.
+pub fn decode_jpeg_within(
+    bytes: &[u8],
+    limits: ImageLimits,
+) -> Result<(ImageHeader, Vec<u8>), ImageError> {
     use zune_jpeg::zune_core::{colorspace::ColorSpace, options::DecoderOptions};
+    // zune-jpeg decodes a cut-off stream "successfully", grey-filling the
+    // rest: a complete stream ends with EOI (cameras may pad with zeros).
+    let end = bytes.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
+    if end < 4 || bytes[end - 2..end] != [0xff, 0xd9] {
+        return Err(ImageError::Jpeg(format!(
+            "truncated: no end-of-image marker in {} bytes",
+            bytes.len()
+        )));
+    }
     let options = DecoderOptions::default().jpeg_set_out_colorspace(ColorSpace::RGB);
     let mut decoder = zune_jpeg::JpegDecoder::new_with_options(bytes, options);
     decoder
@@ -234,6 +304,7 @@ pub fn decode_jpeg(bytes: &[u8]) -> Result<(ImageHeader, Vec<u8>), ImageError> {
     let info = decoder
         .info()
         .ok_or_else(|| ImageError::Jpeg("no image header".into()))?;
+    limits.check(u32::from(info.width), u32::from(info.height))?;
     let data = decoder
         .decode()
         .map_err(|e| ImageError::Jpeg(format!("{e:?}")))?;
@@ -264,12 +335,27 @@ pub fn decode_frame(
     }
 }
 
-/// Decodes a PNG or JPEG file, told apart by its first bytes.
+/// Decodes a PNG or JPEG file, told apart by its first bytes, within
+/// [`ImageLimits::DEFAULT`].
 pub fn decode_image(bytes: &[u8]) -> Result<(ImageHeader, Vec<u8>), ImageError> {
+    decode_image_within(bytes, ImageLimits::DEFAULT)
+}
+
+/// [`decode_image`] with the size checked against `limits` before decoding.
+pub fn decode_image_within(
+    bytes: &[u8],
+    limits: ImageLimits,
+) -> Result<(ImageHeader, Vec<u8>), ImageError> {
     if bytes.starts_with(&[0xff, 0xd8]) {
-        decode_jpeg(bytes)
+        decode_jpeg_within(bytes, limits)
+    } else if bytes.starts_with(b"\x89PNG") {
+        decode_png_within(bytes, limits)
     } else {
-        decode_png(bytes)
+        Err(ImageError::Png(format!(
+            "neither PNG nor JPEG: {} bytes starting {:02x?}",
+            bytes.len(),
+            &bytes[..bytes.len().min(4)]
+        )))
     }
 }
 
@@ -454,6 +540,73 @@ mod tests {
             .chunks(3)
             .all(|p| p[0].abs_diff(200) < 6 && p[1].abs_diff(100) < 6 && p[2].abs_diff(50) < 6));
         assert!(decode_jpeg(&j[..20]).is_err());
+        // Cut anywhere, it is refused (zune-jpeg alone grey-fills the rest);
+        // zero padding after the end marker, as cameras send, is fine.
+        for cut in [j.len() / 4, j.len() / 2, j.len() - 2, j.len() - 1] {
+            let e = decode_jpeg(&j[..cut]).unwrap_err().to_string();
+            assert!(e.contains("truncated"), "cut at {cut}: {e}");
+        }
+        let mut padded = j.clone();
+        padded.extend_from_slice(&[0; 16]);
+        assert!(decode_jpeg(&padded).is_ok());
+        // Larger than allowed: refused from the header.
+        let small = ImageLimits {
+            max_width: 16,
+            max_height: 16,
+        };
+        let e = decode_jpeg_within(&j, small).unwrap_err().to_string();
+        assert!(e.contains("32x16") && e.contains("16x16"), "{e}");
+    }
+
+    /// A PNG of 1x1 whose header is patched to declare 100000 x 100000 RGB
+    /// pixels (CRC fixed up): 30 GB if believed.
+    fn png_bomb() -> Vec<u8> {
+        let h = ImageHeader::packed(Stamp::default(), 0, 1, 1, PixelEncoding::RGB8);
+        let mut png = encode_png(&h, &[1, 2, 3]).unwrap();
+        // Signature (8), IHDR length (4) and type (4), then width, height.
+        png[16..20].copy_from_slice(&100_000u32.to_be_bytes());
+        png[20..24].copy_from_slice(&100_000u32.to_be_bytes());
+        let crc = crc32(&png[12..29]);
+        png[29..33].copy_from_slice(&crc.to_be_bytes());
+        png
+    }
+
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut c = !0u32;
+        for &b in bytes {
+            c ^= u32::from(b);
+            for _ in 0..8 {
+                c = if c & 1 == 1 {
+                    0xedb8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        !c
+    }
+
+    #[test]
+    fn a_png_declaring_a_huge_image_is_refused_before_any_allocation() {
+        let bomb = png_bomb();
+        assert!(bomb.len() < 200, "{} bytes", bomb.len());
+        let e = decode_png(&bomb).unwrap_err().to_string();
+        assert!(
+            e.contains("100000x100000") && e.contains("8192x8192"),
+            "{e}"
+        );
+        assert!(decode_image(&bomb).is_err());
+        // Within a camera's own size, a bigger valid PNG is refused too.
+        let h = ImageHeader::packed(Stamp::default(), 0, 64, 48, PixelEncoding::MONO8);
+        let png = encode_png(&h, &[7u8; 64 * 48]).unwrap();
+        let camera = ImageLimits {
+            max_width: 32,
+            max_height: 48,
+        };
+        assert!(decode_png_within(&png, camera).is_err());
+        assert!(decode_png_within(&png, ImageLimits::DEFAULT).is_ok());
+        // Cut short: an error, not a partial image.
+        assert!(decode_png(&png[..png.len() / 2]).is_err());
     }
 
     #[test]

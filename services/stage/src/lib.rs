@@ -133,6 +133,8 @@ pub trait Validate {
 }
 
 /// Parses TOML text into `T` and validates it; `origin` names the source in errors.
+/// A `nan`, `inf` or `-inf` anywhere is refused, naming its key: no stage
+/// has a setting where a non-finite number means something.
 pub fn parse_config<T: DeserializeOwned + Validate>(
     text: &str,
     origin: &str,
@@ -141,8 +143,36 @@ pub fn parse_config<T: DeserializeOwned + Validate>(
         path: origin.to_string(),
         detail: e.to_string().trim_end().to_string(),
     })?;
+    if let Ok(table) = toml::from_str::<toml::Table>(text) {
+        refuse_non_finite(&toml::Value::Table(table), "")?;
+    }
     config.validate()?;
     Ok(config)
+}
+
+/// The first non-finite float under `value`, as an error naming its key
+/// (`servo.k_linear`, `cameras[0].rate_hz`).
+fn refuse_non_finite(value: &toml::Value, key: &str) -> Result<(), ConfigError> {
+    match value {
+        toml::Value::Float(f) if !f.is_finite() => Err(ConfigError::invalid(
+            key,
+            f,
+            "a finite number (nan and inf are never meaningful here)",
+        )),
+        toml::Value::Table(t) => t.iter().try_for_each(|(k, v)| {
+            let key = if key.is_empty() {
+                k.clone()
+            } else {
+                format!("{key}.{k}")
+            };
+            refuse_non_finite(v, &key)
+        }),
+        toml::Value::Array(a) => a
+            .iter()
+            .enumerate()
+            .try_for_each(|(i, v)| refuse_non_finite(v, &format!("{key}[{i}]"))),
+        _ => Ok(()),
+    }
 }
 
 /// Loads and validates a config file that must exist.
@@ -468,6 +498,43 @@ mod tests {
         assert!(e.to_string().contains("unknown field `rat_hz`"), "{e}");
         let ok = parse_config::<Cfg>("rate_hz = 5.0\nname = \"x\"", "a.toml").unwrap();
         assert_eq!((ok.rate_hz, ok.name.as_str()), (5.0, "x"));
+    }
+
+    #[test]
+    fn nan_and_infinities_are_refused_anywhere_naming_the_key() {
+        #[derive(Debug, Deserialize, Default)]
+        #[serde(default)]
+        struct Nested {
+            rate_hz: f64,
+            inner: Inner,
+            list: Vec<Inner>,
+        }
+        #[derive(Debug, Deserialize, Default)]
+        #[serde(default)]
+        struct Inner {
+            gain: f64,
+        }
+        impl Validate for Nested {}
+        for (text, key, value) in [
+            ("rate_hz = nan", "rate_hz", "NaN"),
+            ("rate_hz = inf", "rate_hz", "inf"),
+            ("[inner]\ngain = -inf", "inner.gain", "-inf"),
+            (
+                "[[list]]\ngain = 1.0\n[[list]]\ngain = nan",
+                "list[1].gain",
+                "NaN",
+            ),
+        ] {
+            let e = parse_config::<Nested>(text, "n.toml")
+                .unwrap_err()
+                .to_string();
+            assert_eq!(
+                e,
+                format!("config key `{key}` = {value}: expected a finite number (nan and inf are never meaningful here)"),
+                "{text}"
+            );
+        }
+        assert!(parse_config::<Nested>("rate_hz = 1e300\n[inner]\ngain = -2.5", "n.toml").is_ok());
     }
 
     #[test]

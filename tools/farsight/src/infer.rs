@@ -21,7 +21,7 @@ pub struct InferArgs {
     /// The model config TOML (see deploy/models/).
     #[arg(long)]
     model_config: PathBuf,
-    /// Image files (PNG) or folders of them.
+    /// Image files (PNG or JPEG) or folders of them.
     #[arg(required = true)]
     inputs: Vec<PathBuf>,
     /// Output folder.
@@ -37,7 +37,13 @@ fn collect(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
                 .with_context(|| format!("reading {}", p.display()))?
                 .flatten()
                 .map(|e| e.path())
-                .filter(|f| f.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")))
+                .filter(|f| {
+                    f.extension().is_some_and(|e| {
+                        ["png", "jpg", "jpeg"]
+                            .iter()
+                            .any(|x| e.eq_ignore_ascii_case(x))
+                    })
+                })
                 .collect();
             in_dir.sort();
             files.extend(in_dir);
@@ -48,7 +54,7 @@ fn collect(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
         }
     }
     if files.is_empty() {
-        bail!("no PNG images in {inputs:?}");
+        bail!("no PNG or JPEG images in {inputs:?}");
     }
     Ok(files)
 }
@@ -79,7 +85,8 @@ pub fn run(a: InferArgs) -> Result<()> {
             .to_string();
         let result = (|| -> Result<Timings> {
             let bytes = std::fs::read(file)?;
-            let (h, frame) = farsight_imaging::decode_png(&bytes)?;
+            // PNG or JPEG, refused from its header above 8192x8192.
+            let (h, frame) = farsight_imaging::decode_image(&bytes)?;
             let mut t = Timings::default();
             let p = backend.run(&h, &frame, table.as_ref().map(|t| t.table()), &mut t)?;
             let (w, hh) = (p.width, p.height);
