@@ -133,8 +133,8 @@ pub trait Validate {
 }
 
 /// Parses TOML text into `T` and validates it; `origin` names the source in errors.
-/// A `nan`, `inf` or `-inf` anywhere is refused, naming its key: no stage
-/// has a setting where a non-finite number means something.
+/// A `nan`, `inf` or `-inf` anywhere is refused, naming its key, except
+/// `inf` in a cost (a key ending in `cost_s_per_m`), which means lethal.
 pub fn parse_config<T: DeserializeOwned + Validate>(
     text: &str,
     origin: &str,
@@ -150,15 +150,17 @@ pub fn parse_config<T: DeserializeOwned + Validate>(
     Ok(config)
 }
 
+const NON_FINITE: &str =
+    "a finite number (nan and inf mean nothing here; only a cost_s_per_m may be inf: lethal)";
+
 /// The first non-finite float under `value`, as an error naming its key
 /// (`servo.k_linear`, `cameras[0].rate_hz`).
 fn refuse_non_finite(value: &toml::Value, key: &str) -> Result<(), ConfigError> {
+    let lethal_cost = |f: f64| f == f64::INFINITY && key.ends_with("cost_s_per_m");
     match value {
-        toml::Value::Float(f) if !f.is_finite() => Err(ConfigError::invalid(
-            key,
-            f,
-            "a finite number (nan and inf are never meaningful here)",
-        )),
+        toml::Value::Float(f) if !f.is_finite() && !lethal_cost(*f) => {
+            Err(ConfigError::invalid(key, f, NON_FINITE))
+        }
         toml::Value::Table(t) => t.iter().try_for_each(|(k, v)| {
             let key = if key.is_empty() {
                 k.clone()
@@ -513,6 +515,7 @@ mod tests {
         #[serde(default)]
         struct Inner {
             gain: f64,
+            cost_s_per_m: f64,
         }
         impl Validate for Nested {}
         for (text, key, value) in [
@@ -524,16 +527,20 @@ mod tests {
                 "list[1].gain",
                 "NaN",
             ),
+            ("[inner]\ncost_s_per_m = -inf", "inner.cost_s_per_m", "-inf"),
+            ("[inner]\ncost_s_per_m = nan", "inner.cost_s_per_m", "NaN"),
         ] {
             let e = parse_config::<Nested>(text, "n.toml")
                 .unwrap_err()
                 .to_string();
             assert_eq!(
                 e,
-                format!("config key `{key}` = {value}: expected a finite number (nan and inf are never meaningful here)"),
+                format!("config key `{key}` = {value}: expected {NON_FINITE}"),
                 "{text}"
             );
         }
+        // A lethal cost is the one meaningful infinity.
+        assert!(parse_config::<Nested>("[inner]\ncost_s_per_m = inf", "n.toml").is_ok());
         assert!(parse_config::<Nested>("rate_hz = 1e300\n[inner]\ngain = -2.5", "n.toml").is_ok());
     }
 
