@@ -175,7 +175,14 @@ impl StageInputs {
     pub fn is_fresh(&self, id: InputId, now_ns: u64) -> bool {
         self.inputs[id.0]
             .newest
-            .is_some_and(|s| now_ns.saturating_sub(s.capture_time_ns) <= self.max_age_ns)
+            .is_some_and(|s| self.within_deadline(age_ns(s, now_ns)))
+    }
+
+    /// An age (ns, negative for a capture time ahead of `now`) within the
+    /// deadline either way: a stamp from the future (a clock out of step)
+    /// would otherwise stay "fresh" until now caught up with it.
+    fn within_deadline(&self, age_ns: i128) -> bool {
+        age_ns.unsigned_abs() <= u128::from(self.max_age_ns)
     }
 
     /// The freshest message of each group, in declaration order.
@@ -224,10 +231,15 @@ impl StageInputs {
     /// Judges every input at `now_ns`: stale required groups first, then
     /// stale optional groups and stale members of fresh groups.
     pub fn check(&self, now_ns: u64) -> Freshness {
-        let age = |s: Option<Stamp>| s.map(|s| now_ns.saturating_sub(s.capture_time_ns));
-        let stale = |a: Option<u64>| a.is_none_or(|a| a > self.max_age_ns);
-        let describe = |name: &str, a: Option<u64>| match a {
+        let age = |s: Option<Stamp>| s.map(|s| age_ns(s, now_ns));
+        let stale = |a: Option<i128>| a.is_none_or(|a| !self.within_deadline(a));
+        let describe = |name: &str, a: Option<i128>| match a {
             None => format!("no {name} yet"),
+            Some(a) if a < 0 => format!(
+                "{name} is stamped {:.2} s in the future (deadline {} s): clocks out of step?",
+                -a as f64 * 1e-9,
+                self.max_age_s
+            ),
             Some(a) => format!(
                 "{name} is {:.2} s old (deadline {} s)",
                 a as f64 * 1e-9,
@@ -260,6 +272,11 @@ impl StageInputs {
             Freshness::Fresh
         }
     }
+}
+
+/// `now_ns` minus the capture time, negative for a stamp from the future.
+fn age_ns(stamp: Stamp, now_ns: u64) -> i128 {
+    i128::from(now_ns) - i128::from(stamp.capture_time_ns)
 }
 
 #[cfg(test)]
@@ -328,6 +345,26 @@ mod tests {
             s.reason(),
             "state/pose is 2.50 s old (deadline 2 s)",
             "only the required input's age stops the stage"
+        );
+    }
+
+    #[test]
+    fn a_stamp_from_the_future_beyond_the_deadline_is_stale_not_fresh_forever() {
+        let mut inputs = StageInputs::new(1.0);
+        let path = inputs.add("nav/path/planned", Need::Required);
+        // Within the deadline ahead (small clock offsets between machines): fine.
+        inputs.consumed(path, at(1, 10.5));
+        assert!(inputs.is_fresh(path, 10 * S));
+        assert_eq!(inputs.check(10 * S), Freshness::Fresh);
+        // A minute ahead: stale, and the reason says why.
+        inputs.consumed(path, at(2, 70.0));
+        assert!(!inputs.is_fresh(path, 10 * S));
+        let s = inputs.check(10 * S);
+        assert!(s.is_stale(), "{s:?}");
+        assert!(
+            s.reason()
+                .starts_with("nav/path/planned is stamped 60.00 s in the future"),
+            "{s:?}"
         );
     }
 
