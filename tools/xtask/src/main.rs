@@ -2,8 +2,10 @@
 //!
 //! - `setup`: fetch ONNX Runtime from the `onnxruntime` PyPI wheel into the
 //!   cache (`$FARSIGHT_CACHE`, default `~/.cache/farsight`) and print its path;
-//! - `test`: every check CI runs: fmt, clippy, build, each test binary on
-//!   its own, then the time of each phase and one summary line;
+//! - `test`: every check CI runs: fmt, `cargo deny` (bans, licences, sources;
+//!   cargo-deny is built once into the cache), clippy, build, each test binary
+//!   on its own, then the time of each phase and one summary line;
+//! - `deny`: only the `cargo deny` check of `test`;
 //! - `bench NAME`: `farsight bench NAME` (transport, navigation, planning, nav, inference, recorder);
 //! - `demo`: build and run the closed loop in the simulator (`--orfd`: the graph
 //!   on the real frames in `../shared/data/orfd`);
@@ -25,18 +27,28 @@ use std::process::{Command, ExitCode, Stdio};
 /// The ONNX Runtime release `ort` 2.0.0-rc.15 targets.
 const ORT_VERSION: &str = "1.31.1";
 
+/// The cargo-deny release the test command builds into the cache.
+const DENY_VERSION: &str = "0.20.2";
+
+/// The platforms of `deny.toml`'s `[graph] targets`, checked one at a time:
+/// given a single target, cargo-deny asks `cargo metadata` for that platform
+/// only, which works offline (the whole graph would need every Windows and
+/// Android crate downloaded).
+const DENY_TARGETS: [&str; 2] = ["x86_64-unknown-linux-gnu", "aarch64-unknown-linux-gnu"];
+
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let result = match args.first().map(String::as_str) {
         Some("setup") => setup().map(|p| println!("ONNX Runtime: {}", p.display())),
         Some("test") => test(),
+        Some("deny") => cargo_deny().and_then(|bin| deny(&bin)),
         Some("bench") => bench(&args[1..]),
         Some("demo") => demo(&args[1..]),
         Some("fixtures") => fixtures(&args[1..]),
         Some("train") => train(&args[1..]),
         _ => {
             eprintln!(
-                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, clippy, build and every test\n  bench NAME        transport | navigation | planning | nav | inference | recorder (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames\n  fixtures [sim|orfd|heldout]  regenerate tests/fixtures (replay fixtures and goldens; held-out frames)\n  train [--smoke] [--ship]  simulate, record, label, train, export, evaluate (LRN + FITAM models)"
+                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, cargo deny, clippy, build and every test\n  deny              cargo deny check bans licenses sources (offline)\n  bench NAME        transport | navigation | planning | nav | inference | recorder (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames\n  fixtures [sim|orfd|heldout]  regenerate tests/fixtures (replay fixtures and goldens; held-out frames)\n  train [--smoke] [--ship]  simulate, record, label, train, export, evaluate (LRN + FITAM models)"
             );
             return ExitCode::from(2);
         }
@@ -147,6 +159,59 @@ fn setup() -> Result<PathBuf> {
     std::fs::rename(&partial, &lib).map_err(|e| e.to_string())?;
     let _ = std::fs::remove_dir_all(&tmp);
     Ok(lib)
+}
+
+/// Makes sure cargo-deny is in the cache; returns the path of its binary.
+/// Built once with `cargo install --locked` from crates.io (about 2.5 min on
+/// two cores), into its own folder per version.
+fn cargo_deny() -> Result<PathBuf> {
+    let dir = cache_dir().join(format!("cargo-deny-{DENY_VERSION}"));
+    let bin = dir.join("bin/cargo-deny");
+    if bin.exists() {
+        return Ok(bin);
+    }
+    eprintln!("xtask: building cargo-deny {DENY_VERSION} into the cache (a few minutes, once)");
+    run(cargo()
+        .args(["install", "--locked", "--quiet", "--root"])
+        .arg(&dir)
+        .arg(format!("cargo-deny@{DENY_VERSION}"))
+        // Its release profile asks for fat LTO and one codegen unit: minutes
+        // more on two cores, for a check that runs in a second.
+        .env("CARGO_PROFILE_RELEASE_LTO", "off")
+        .env("CARGO_PROFILE_RELEASE_CODEGEN_UNITS", "16")
+        // A temporary build folder: neither the workspace's nor its lock.
+        .env_remove("CARGO_TARGET_DIR"))?;
+    if !bin.exists() {
+        return Err(format!("cargo install left no {}", bin.display()));
+    }
+    Ok(bin)
+}
+
+/// `cargo deny check bans licenses sources` for each platform in
+/// `DENY_TARGETS`, offline: it never fetches the advisory database (advisories
+/// are checked by hand, see README "Supply chain"). Quiet; its report is
+/// printed only when a check fails.
+fn deny(bin: &Path) -> Result<()> {
+    for target in DENY_TARGETS {
+        // That platform's crates, from crates.io, when the build has not
+        // fetched them (a no-op otherwise).
+        run(cargo().args(["fetch", "--quiet", "--target", target]))?;
+        let out = Command::new(bin)
+            .current_dir(root())
+            .args(["--offline", "--color", "never", "--target", target])
+            // Duplicate versions only warn, and would bury an error's report
+            // under thousands of lines; `cargo deny check` lists them.
+            .args(["check", "--allow", "duplicate"])
+            .args(["bans", "licenses", "sources"])
+            .output()
+            .map_err(|e| format!("{}: {e}", bin.display()))?;
+        if !out.status.success() {
+            eprint!("{}", String::from_utf8_lossy(&out.stdout));
+            eprint!("{}", String::from_utf8_lossy(&out.stderr));
+            return Err(format!("cargo deny ({target}) failed ({})", out.status));
+        }
+    }
+    Ok(())
 }
 
 /// Wall-clock time of each phase of `cargo xtask test`, printed as a table at
@@ -350,6 +415,8 @@ fn test() -> Result<()> {
 fn test_phases(phases: &mut Phases) -> Result<(u64, u64, u64)> {
     let ort = phases.time("setup (ONNX Runtime)", setup)?;
     phases.time("fmt", || run(cargo().args(["fmt", "--all", "--check"])))?;
+    let deny_bin = phases.time("setup (cargo-deny)", cargo_deny)?;
+    phases.time("cargo deny", || deny(&deny_bin))?;
     phases.time("clippy", || {
         run(cargo().args([
             "clippy",
