@@ -25,7 +25,7 @@
 
 use farsight_interfaces::camera::Camera;
 use farsight_interfaces::msg::PolarCell;
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::{PI, TAU};
 
@@ -64,32 +64,39 @@ impl Default for FitamBinsConfig {
 }
 
 impl Validate for FitamBinsConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        ConfigError::check(
-            (1..=360).contains(&self.heading_bins),
-            "fitam.heading_bins",
+    fn ranges(&self, r: &mut Ranges) {
+        r.key(
+            "heading_bins",
             self.heading_bins,
-            "1..=360",
-        )?;
+            Range::between(1.0, 360.0),
+        )
+        .each(
+            "range_edges_m",
+            &self.range_edges_m,
+            Range::between(0.0, 10_000.0).unit("m"),
+        )
+        .each(
+            "class_speeds_mps",
+            &self.class_speeds_mps,
+            Range::above_to(0.0, 100.0).unit("m/s"),
+        );
+    }
+
+    fn check_rules(&self) -> Result<(), ConfigError> {
         let edges_ok = self.range_edges_m.len() >= 2
             && self.range_edges_m.len() <= farsight_interfaces::msg::MAX_RANGE_EDGES
-            && self.range_edges_m[0] >= 0.0
             && self.range_edges_m.windows(2).all(|w| w[0] < w[1]);
         ConfigError::check(
             edges_ok,
             "fitam.range_edges_m",
             format!("{:?}", self.range_edges_m),
-            "2..=16 increasing, non-negative distances",
+            "2..=16 increasing distances",
         )?;
         ConfigError::check(
-            self.class_speeds_mps.len() >= 2
-                && self
-                    .class_speeds_mps
-                    .iter()
-                    .all(|&s| s > 0.0 && s.is_finite()),
+            self.class_speeds_mps.len() >= 2,
             "fitam.class_speeds_mps",
             format!("{:?}", self.class_speeds_mps),
-            "two or more positive speeds",
+            "two or more speeds",
         )
     }
 }

@@ -25,9 +25,10 @@
 //! ```
 
 pub mod fitam;
+pub mod stage;
 
 use farsight_interfaces::camera::Camera;
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::{Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
@@ -229,25 +230,14 @@ impl LrnBinsConfig {
 }
 
 impl Validate for LrnBinsConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        ConfigError::check(
-            self.bin_width_deg >= 1.0 && self.bin_width_deg <= 90.0,
-            "bins.bin_width_deg",
+    fn ranges(&self, r: &mut Ranges) {
+        r.key(
+            "bin_width_deg",
             self.bin_width_deg,
-            "1..=90 degrees (at most 360 bins)",
-        )?;
-        ConfigError::check(
-            (0.0..=1.0).contains(&self.h_thresh),
-            "bins.h_thresh",
-            self.h_thresh,
-            "0..=1",
-        )?;
-        ConfigError::check(
-            self.alpha > 0.0 && self.alpha <= 1.0,
-            "bins.alpha",
-            self.alpha,
-            "(0, 1]",
+            Range::between(1.0, 90.0).unit("deg"),
         )
+        .key("h_thresh", self.h_thresh, Range::between(0.0, 1.0))
+        .key("alpha", self.alpha, Range::above_to(0.0, 1.0));
     }
 }
 

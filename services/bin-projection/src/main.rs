@@ -4,30 +4,12 @@
 //! FITAM far-field ensemble outputs become polar cost bins on `bins/polar`.
 //! Either is published each time an input arrives.
 //!
-//! Config (`bin-projection.toml`, defaults shown):
-//!
-//! ```toml
-//! method = "lrn"                 # or "fitam"
-//! cameras = ["front"]            # reads perception/<camera>/heatmap (lrn) or
-//!                                # perception/<camera>/far_field (fitam), and camera/<camera>/info
-//! input_deadline_s = 1.0         # a camera whose newest capture is this much older than
-//!                                # the newest of any camera drops out of the bins
-//! health_rate_hz = 1.0
-//! [bins]                         # see farsight_bin_projection::LrnBinsConfig (Spot preset)
-//! bin_width_deg = 5.0
-//! h_thresh = 0.7
-//! threshold_on = "pixels"        # or "bins"
-//! alpha = 0.1
-//! [fitam]                        # see farsight_bin_projection::fitam::FitamBinsConfig
-//! heading_bins = 32
-//! range_edges_m = [25.0, 50.0, 75.0, 100.0]
-//! class_speeds_mps = [0.5, 2.25, 4.25]
-//! variance = "max_probability"   # R = 1 - max p (reference code), or "entropy" (paper)
-//! ```
+//! Config: [`farsight_bin_projection::stage::BinProjectionConfig`].
 
 use anyhow::Result;
-use farsight_bin_projection::fitam::{self, FitamBinsConfig};
-use farsight_bin_projection::{BinGeometry, CameraBins, LrnBins, LrnBinsConfig, Projection};
+use farsight_bin_projection::fitam;
+use farsight_bin_projection::stage::BinProjectionConfig;
+use farsight_bin_projection::{BinGeometry, CameraBins, LrnBins, Projection};
 use farsight_interfaces::camera::Camera;
 use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::fixed::FixedVec;
@@ -36,68 +18,11 @@ use farsight_interfaces::msg::{
 };
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{self, Bus, Wake};
-use farsight_stage::{
-    load_config, ConfigError, Freshness, Health, InputId, Need, StageArgs, StageInputs, Validate,
-};
-use serde::{Deserialize, Serialize};
+use farsight_stage::{load_config, Freshness, Health, InputId, Need, StageArgs, StageInputs};
 use std::ops::ControlFlow;
 use std::time::Duration;
 
 const STAGE: &str = "bin-projection";
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-struct Config {
-    method: String,
-    cameras: Vec<String>,
-    input_deadline_s: f64,
-    health_rate_hz: f64,
-    bins: LrnBinsConfig,
-    fitam: FitamBinsConfig,
-}
-
-impl Default for Config {
-    fn default() -> Self {
-        Self {
-            method: "lrn".into(),
-            cameras: vec!["front".into()],
-            input_deadline_s: farsight_stage::inputs::DEFAULT_INPUT_DEADLINE_S,
-            health_rate_hz: 1.0,
-            bins: LrnBinsConfig::default(),
-            fitam: FitamBinsConfig::default(),
-        }
-    }
-}
-
-impl Validate for Config {
-    fn validate(&self) -> Result<(), ConfigError> {
-        ConfigError::check(
-            ["lrn", "fitam"].contains(&self.method.as_str()),
-            "method",
-            &self.method,
-            "\"lrn\" or \"fitam\"",
-        )?;
-        ConfigError::check(
-            !self.cameras.is_empty(),
-            "cameras",
-            "[]",
-            "at least one camera name",
-        )?;
-        for c in &self.cameras {
-            farsight_interfaces::topics::validate_name(c)
-                .map_err(|e| ConfigError::invalid("cameras", c, e.why))?;
-        }
-        ConfigError::check(
-            self.health_rate_hz > 0.0,
-            "health_rate_hz",
-            self.health_rate_hz,
-            "a positive rate in Hz",
-        )?;
-        farsight_stage::inputs::check_input_deadline(self.input_deadline_s)?;
-        self.bins.validate()?;
-        self.fitam.validate()
-    }
-}
 
 fn main() {
     farsight_stage::run_main(STAGE, run);
@@ -106,7 +31,7 @@ fn main() {
 fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
     farsight_stage::init_tracing(args.log_format);
-    let config: Config = load_config(args.config.as_deref())?;
+    let config: BinProjectionConfig = load_config(args.config.as_deref())?;
     if config.method == "fitam" {
         return run_fitam(&config);
     }
@@ -229,7 +154,7 @@ fn run() -> Result<()> {
 
 /// The FITAM loop: each camera's latest ensemble output becomes polar cells
 /// in the heading bins its slices look into; cameras merge by certainty.
-fn run_fitam(config: &Config) -> Result<()> {
+fn run_fitam(config: &BinProjectionConfig) -> Result<()> {
     let cfg = &config.fitam;
     let bus = Bus::open(STAGE)?;
     let tensors = config
@@ -337,7 +262,7 @@ fn run_fitam(config: &Config) -> Result<()> {
 
 /// The cameras as one required group: the bins go on while any camera
 /// sends, and carry the newest capture among them.
-fn camera_inputs(config: &Config) -> (StageInputs, Vec<InputId>) {
+fn camera_inputs(config: &BinProjectionConfig) -> (StageInputs, Vec<InputId>) {
     let mut inputs = StageInputs::new(config.input_deadline_s);
     let ids = config
         .cameras

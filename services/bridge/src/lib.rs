@@ -40,7 +40,8 @@ use farsight_interfaces::transport::any::{AnyPublisher, AnySubscriber};
 use farsight_interfaces::transport::ipc::{self, Bus};
 use farsight_interfaces::transport::net::{NetBus, RawPublisher, RawSubscriber};
 use farsight_interfaces::transport::{wire, TransportError};
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::ranges::RATE_HZ;
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 use std::cell::RefCell;
 
@@ -162,21 +163,35 @@ pub struct ImportConfig {
 }
 
 impl Validate for BridgeConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        topics::validate_name(&self.robot)
-            .map_err(|e| ConfigError::invalid("robot", &self.robot, e.why))?;
-        ConfigError::check(
-            self.health_rate_hz > 0.0,
-            "health_rate_hz",
-            self.health_rate_hz,
-            "a positive rate in Hz",
-        )?;
-        ConfigError::check(
-            self.import_poll_hz > 0.0,
+    fn ranges(&self, r: &mut Ranges) {
+        r.key("health_rate_hz", self.health_rate_hz, RATE_HZ).key(
             "import_poll_hz",
             self.import_poll_hz,
-            "a positive rate in Hz",
-        )?;
+            RATE_HZ,
+        );
+        for (i, e) in self.export.iter().enumerate() {
+            // 0: every message.
+            r.key(
+                &format!("export[{i}].max_rate_hz"),
+                e.max_rate_hz,
+                Range::between(0.0, 1000.0).unit("Hz"),
+            )
+            .key(
+                &format!("export[{i}].downsample"),
+                e.downsample,
+                Range::between(1.0, 64.0),
+            )
+            .key(
+                &format!("export[{i}].jpeg_quality"),
+                e.jpeg_quality,
+                Range::between(1.0, 100.0),
+            );
+        }
+    }
+
+    fn check_rules(&self) -> Result<(), ConfigError> {
+        topics::validate_name(&self.robot)
+            .map_err(|e| ConfigError::invalid("robot", &self.robot, e.why))?;
         ConfigError::check(
             ["peer", "client", "router"].contains(&self.zenoh.mode.as_str()),
             "zenoh.mode",
@@ -192,24 +207,6 @@ impl Validate for BridgeConfig {
                     "a farsight topic (see farsight_interfaces::topics)",
                 )
             })?;
-            ConfigError::check(
-                e.max_rate_hz >= 0.0 && e.max_rate_hz.is_finite(),
-                &key("max_rate_hz"),
-                e.max_rate_hz,
-                "0 (every message) or a positive rate",
-            )?;
-            ConfigError::check(
-                e.downsample >= 1,
-                &key("downsample"),
-                e.downsample,
-                "1 or more",
-            )?;
-            ConfigError::check(
-                (1..=100).contains(&e.jpeg_quality),
-                &key("jpeg_quality"),
-                e.jpeg_quality,
-                "1..=100",
-            )?;
             if kind != TopicKind::Image && (e.downsample != 1 || e.compression != Compression::None)
             {
                 return Err(ConfigError::invalid(

@@ -56,7 +56,8 @@ pub mod v4l2;
 
 use farsight_interfaces::camera::CameraConfig;
 use farsight_interfaces::msg::{ImageHeader, PixelEncoding};
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::ranges::RATE_HZ;
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -104,6 +105,46 @@ pub struct CameraEntry {
     #[serde(default)]
     pub capture_time: CaptureTime,
     pub model: CameraConfig,
+}
+
+impl Validate for CameraEntry {
+    fn ranges(&self, r: &mut Ranges) {
+        let m = &self.model;
+        let focal = Range::above_to(0.0, 1e6).unit("px");
+        let centre = Range::between(-1e6, 1e6).unit("px");
+        let side = Range::between(
+            1.0,
+            f64::from(farsight_imaging::ImageLimits::DEFAULT.max_width),
+        )
+        .unit("px");
+        r.key("rate_hz", self.rate_hz, RATE_HZ)
+            .key("loops", self.loops, Range::between(0.0, 1e9))
+            .key("speed", self.speed, Range::between(0.01, 100.0))
+            .key(
+                "pace_timeout_s",
+                self.pace_timeout_s,
+                Range::above_to(0.0, 3600.0).unit("s"),
+            )
+            .optional("model.id", m.id, Range::between(0.0, f64::from(u32::MAX)))
+            .optional("model.width", m.width, side)
+            .optional("model.height", m.height, side)
+            .optional("model.fx", m.fx, focal)
+            .optional("model.fy", m.fy, focal)
+            .optional("model.cx", m.cx, centre)
+            .optional("model.cy", m.cy, centre)
+            .each("model.distortion", &m.distortion, Range::between(-1e3, 1e3))
+            // Mount offsets are signed: behind, right of or below base_link.
+            .each(
+                "model.xyz_m",
+                &m.xyz_m,
+                Range::between(-100.0, 100.0).unit("m"),
+            )
+            .each(
+                "model.rpy_deg",
+                &m.rpy_deg,
+                Range::between(-360.0, 360.0).unit("deg"),
+            );
+    }
 }
 
 /// The capture time a frame is stamped with.
@@ -189,13 +230,14 @@ impl Default for IngestConfig {
 }
 
 impl Validate for IngestConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        ConfigError::check(
-            self.health_rate_hz > 0.0,
-            "health_rate_hz",
-            self.health_rate_hz,
-            "a positive rate in Hz",
-        )?;
+    fn ranges(&self, r: &mut Ranges) {
+        r.key("health_rate_hz", self.health_rate_hz, RATE_HZ);
+        for (i, c) in self.cameras.iter().enumerate() {
+            r.nested(&format!("cameras[{i}]"), c);
+        }
+    }
+
+    fn check_rules(&self) -> Result<(), ConfigError> {
         ConfigError::check(
             !self.cameras.is_empty(),
             "cameras",
@@ -219,12 +261,6 @@ impl Validate for IngestConfig {
                     &c.pace_by,
                     "an image topic derived from this camera's frames (e.g. perception/<camera>/navigability)",
                 )?;
-                ConfigError::check(
-                    c.pace_timeout_s > 0.0,
-                    &key("pace_timeout_s"),
-                    c.pace_timeout_s,
-                    "a positive time in seconds",
-                )?;
             }
             match c.source.as_str() {
                 "folder" => {
@@ -233,12 +269,6 @@ impl Validate for IngestConfig {
                         &key("folder"),
                         "\"\"",
                         "a folder of PNG/JPEG images",
-                    )?;
-                    ConfigError::check(
-                        c.rate_hz > 0.0 && c.rate_hz.is_finite(),
-                        &key("rate_hz"),
-                        c.rate_hz,
-                        "a positive rate in Hz",
                     )?;
                 }
                 "v4l2" => {
@@ -261,12 +291,6 @@ impl Validate for IngestConfig {
                         &key("topic"),
                         "\"\"",
                         "the image topic to play",
-                    )?;
-                    ConfigError::check(
-                        c.speed > 0.0 && c.speed.is_finite(),
-                        &key("speed"),
-                        c.speed,
-                        "a positive factor",
                     )?;
                 }
                 other => {

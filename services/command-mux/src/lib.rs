@@ -51,7 +51,8 @@
 use farsight_interfaces::base::CommandGate;
 use farsight_interfaces::msg::{CommandReason, EStop, VelocityCommand};
 use farsight_interfaces::topics;
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::ranges::RATE_HZ;
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 /// What autonomy does when the operator link is lost.
@@ -118,19 +119,30 @@ impl Default for MuxConfig {
 }
 
 impl Validate for MuxConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        for (key, v) in [
-            ("output_rate_hz", self.output_rate_hz),
-            ("health_rate_hz", self.health_rate_hz),
-        ] {
-            ConfigError::check(v > 0.0 && v <= 1000.0, key, v, "0 < rate <= 1000 Hz")?;
+    fn ranges(&self, r: &mut Ranges) {
+        r.key("output_rate_hz", self.output_rate_hz, RATE_HZ)
+            .key("health_rate_hz", self.health_rate_hz, RATE_HZ)
+            // 0: no deadman.
+            .key(
+                "deadman_timeout_s",
+                self.deadman_timeout_s,
+                Range::between(0.0, 60.0).unit("s"),
+            );
+        for (i, input) in self.inputs.iter().enumerate() {
+            r.key(
+                &format!("inputs[{i}].priority"),
+                input.priority,
+                Range::between(0.0, 255.0),
+            )
+            .key(
+                &format!("inputs[{i}].max_ttl_s"),
+                input.max_ttl_s,
+                Range::above_to(0.0, 60.0).unit("s"),
+            );
         }
-        ConfigError::check(
-            self.deadman_timeout_s.is_finite() && self.deadman_timeout_s >= 0.0,
-            "deadman_timeout_s",
-            self.deadman_timeout_s,
-            "0 (no deadman) or a positive time in seconds",
-        )?;
+    }
+
+    fn check_rules(&self) -> Result<(), ConfigError> {
         ConfigError::check(
             !self.inputs.is_empty(),
             "inputs",
@@ -156,12 +168,6 @@ impl Validate for MuxConfig {
                 &key("topic"),
                 &input.topic,
                 "a command topic cmd/<name> other than cmd/velocity (the mux's output), used once",
-            )?;
-            ConfigError::check(
-                input.max_ttl_s.is_finite() && input.max_ttl_s > 0.0 && input.max_ttl_s <= 60.0,
-                &key("max_ttl_s"),
-                input.max_ttl_s,
-                "seconds, more than 0 and at most 60",
             )?;
         }
         Ok(())

@@ -4,7 +4,7 @@
 //! map update adds process noise Q so old far-field guesses fade back toward
 //! "unknown".
 
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::{Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 /// Mean cost and variance of one cell.
@@ -40,21 +40,14 @@ impl Default for FarFieldConfig {
 }
 
 impl Validate for FarFieldConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        for (k, v) in [
-            ("far_field.initial_mean_s_per_m", self.initial_mean_s_per_m),
-            ("far_field.unknown_cost_s_per_m", self.unknown_cost_s_per_m),
-        ] {
-            ConfigError::check(v > 0.0 && v.is_finite(), k, v, "a positive cost in s/m")?;
-        }
-        for (k, v) in [
-            ("far_field.initial_variance", self.initial_variance),
-            ("far_field.process_noise", self.process_noise),
-            ("far_field.variance_threshold", self.variance_threshold),
-        ] {
-            ConfigError::check(v >= 0.0 && v.is_finite(), k, v, "a non-negative variance")?;
-        }
-        Ok(())
+    fn ranges(&self, r: &mut Ranges) {
+        let cost = Range::above_to(0.0, 1000.0).unit("s/m");
+        let variance = Range::between(0.0, 1e6);
+        r.key("initial_mean_s_per_m", self.initial_mean_s_per_m, cost)
+            .key("unknown_cost_s_per_m", self.unknown_cost_s_per_m, cost)
+            .key("initial_variance", self.initial_variance, variance)
+            .key("process_noise", self.process_noise, variance)
+            .key("variance_threshold", self.variance_threshold, variance);
     }
 }
 

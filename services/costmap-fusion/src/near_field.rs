@@ -17,7 +17,7 @@ use crate::grid::cell_of;
 use farsight_inference::normals::RayTable;
 use farsight_interfaces::camera::Camera;
 use farsight_interfaces::msg::Pose;
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 
@@ -60,7 +60,36 @@ impl Default for NearFieldConfig {
 }
 
 impl Validate for NearFieldConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
+    fn ranges(&self, r: &mut Ranges) {
+        r.key(
+            "depth_scale_m",
+            self.depth_scale_m,
+            Range::above_to(0.0, 1000.0).unit("m per unit"),
+        )
+        .key(
+            "range_m",
+            self.range_m,
+            Range::above_to(0.0, 1000.0).unit("m"),
+        )
+        .key(
+            "max_step_m",
+            self.max_step_m,
+            Range::above_to(0.0, 10.0).unit("m"),
+        )
+        .key(
+            "max_slope_deg",
+            self.max_slope_deg,
+            Range::open(0.0, 90.0).unit("deg"),
+        )
+        .key(
+            "free_cost_s_per_m",
+            self.free_cost_s_per_m,
+            Range::above_to(0.0, 1000.0).unit("s/m"),
+        )
+        .key("pixel_stride", self.pixel_stride, Range::between(1.0, 64.0));
+    }
+
+    fn check_rules(&self) -> Result<(), ConfigError> {
         for c in self.depth_cameras.iter().chain(&self.class_map_cameras) {
             farsight_interfaces::topics::validate_name(c)
                 .map_err(|e| ConfigError::invalid("near_field cameras", c, e.why))?;
@@ -71,29 +100,7 @@ impl Validate for NearFieldConfig {
             "\"\"",
             "a class table file when class_map_cameras is set",
         )?;
-        for (k, v) in [
-            ("near_field.depth_scale_m", self.depth_scale_m as f64),
-            ("near_field.range_m", self.range_m),
-            ("near_field.max_step_m", self.max_step_m),
-            (
-                "near_field.free_cost_s_per_m",
-                self.free_cost_s_per_m as f64,
-            ),
-        ] {
-            ConfigError::check(v > 0.0 && v.is_finite(), k, v, "a positive number")?;
-        }
-        ConfigError::check(
-            self.max_slope_deg > 0.0 && self.max_slope_deg < 90.0,
-            "near_field.max_slope_deg",
-            self.max_slope_deg,
-            "0 < slope < 90 degrees",
-        )?;
-        ConfigError::check(
-            (1..=64).contains(&self.pixel_stride),
-            "near_field.pixel_stride",
-            self.pixel_stride,
-            "1..=64",
-        )
+        Ok(())
     }
 }
 

@@ -38,7 +38,9 @@
 
 use crate::kalman::FarFieldConfig;
 use crate::near_field::NearFieldConfig;
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::inputs::INPUT_DEADLINE_S;
+use farsight_stage::ranges::RATE_HZ;
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -76,19 +78,26 @@ impl Default for FusionStageConfig {
 }
 
 impl Validate for FusionStageConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        for (k, v) in [
-            ("width_cells", self.width_cells),
-            ("height_cells", self.height_cells),
-        ] {
-            ConfigError::check((3..=4001).contains(&v), k, v, "3..=4001 cells")?;
-        }
-        ConfigError::check(
-            self.resolution_m > 0.0 && self.resolution_m.is_finite(),
-            "resolution_m",
-            self.resolution_m,
-            "a positive cell size in metres",
-        )?;
+    fn ranges(&self, r: &mut Ranges) {
+        r.key("width_cells", self.width_cells, Range::between(3.0, 4001.0))
+            .key(
+                "height_cells",
+                self.height_cells,
+                Range::between(3.0, 4001.0),
+            )
+            .key(
+                "resolution_m",
+                self.resolution_m,
+                Range::above_to(0.0, 100.0).unit("m"),
+            )
+            .key("publish_rate_hz", self.publish_rate_hz, RATE_HZ)
+            .key("health_rate_hz", self.health_rate_hz, RATE_HZ)
+            .key("input_deadline_s", self.input_deadline_s, INPUT_DEADLINE_S)
+            .nested("near_field", &self.near_field)
+            .nested("far_field", &self.far_field);
+    }
+
+    fn check_rules(&self) -> Result<(), ConfigError> {
         for c in &self.local_costmaps {
             ConfigError::check(
                 !["fused", "far_field", "near_field"].contains(&c.as_str()),
@@ -99,15 +108,8 @@ impl Validate for FusionStageConfig {
             farsight_interfaces::topics::validate_name(c)
                 .map_err(|e| ConfigError::invalid("local_costmaps", c, e.why))?;
         }
-        for (k, v) in [
-            ("publish_rate_hz", self.publish_rate_hz),
-            ("health_rate_hz", self.health_rate_hz),
-        ] {
-            ConfigError::check(v > 0.0 && v <= 1000.0, k, v, "0 < rate <= 1000 Hz")?;
-        }
-        farsight_stage::inputs::check_input_deadline(self.input_deadline_s)?;
-        self.near_field.validate()?;
-        self.far_field.validate()
+        self.near_field.check_rules()?;
+        self.far_field.check_rules()
     }
 }
 

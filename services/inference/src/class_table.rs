@@ -15,7 +15,7 @@
 //! cost_s_per_m = 0.25
 //! ```
 
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::SystemTime;
@@ -48,7 +48,23 @@ pub struct ClassTableConfig {
 }
 
 impl Validate for ClassTableConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
+    fn ranges(&self, r: &mut Ranges) {
+        r.key(
+            "default_cost_s_per_m",
+            self.default_cost_s_per_m,
+            Range::cost_s_per_m(),
+        );
+        for (i, c) in self.classes.iter().enumerate() {
+            r.key(&format!("class[{i}].id"), c.id, Range::between(0.0, 255.0))
+                .key(
+                    &format!("class[{i}].cost_s_per_m"),
+                    c.cost_s_per_m,
+                    Range::cost_s_per_m(),
+                );
+        }
+    }
+
+    fn check_rules(&self) -> Result<(), ConfigError> {
         let mut seen = [false; 256];
         for (i, c) in self.classes.iter().enumerate() {
             ConfigError::check(
@@ -58,12 +74,6 @@ impl Validate for ClassTableConfig {
                 "each id listed once",
             )?;
             seen[c.id as usize] = true;
-            ConfigError::check(
-                c.cost_s_per_m > 0.0 && !c.cost_s_per_m.is_nan(),
-                &format!("class[{i}].cost_s_per_m"),
-                c.cost_s_per_m,
-                "a positive cost (inf = lethal)",
-            )?;
         }
         Ok(())
     }

@@ -10,7 +10,7 @@
 //! ```
 
 use farsight_interfaces::msg::{ImageHeader, PixelEncoding};
-use farsight_stage::ConfigError;
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 /// One accepted colour range.
@@ -25,29 +25,31 @@ pub struct HsvRange {
     pub value: [f32; 2],
 }
 
-impl HsvRange {
-    pub fn validate(&self, key: &str) -> Result<(), ConfigError> {
-        let in_unit = |v: [f32; 2]| v.iter().all(|x| (0.0..=1.0).contains(x)) && v[0] <= v[1];
-        ConfigError::check(
-            self.hue_deg.iter().all(|h| (0.0..=360.0).contains(h)),
-            &format!("{key}.hue_deg"),
-            format!("{:?}", self.hue_deg),
-            "degrees in [0, 360]",
-        )?;
-        ConfigError::check(
-            in_unit(self.saturation),
-            &format!("{key}.saturation"),
-            format!("{:?}", self.saturation),
-            "[min, max] within [0, 1]",
-        )?;
-        ConfigError::check(
-            in_unit(self.value),
-            &format!("{key}.value"),
-            format!("{:?}", self.value),
-            "[min, max] within [0, 1]",
+impl Validate for HsvRange {
+    fn ranges(&self, r: &mut Ranges) {
+        r.each(
+            "hue_deg",
+            &self.hue_deg,
+            Range::between(0.0, 360.0).unit("deg"),
         )
+        .each("saturation", &self.saturation, Range::between(0.0, 1.0))
+        .each("value", &self.value, Range::between(0.0, 1.0));
     }
 
+    fn check_rules(&self) -> Result<(), ConfigError> {
+        for (key, [lo, hi]) in [("saturation", self.saturation), ("value", self.value)] {
+            ConfigError::check(
+                lo <= hi,
+                key,
+                format!("[{lo}, {hi}]"),
+                "[min, max] with min <= max",
+            )?;
+        }
+        Ok(())
+    }
+}
+
+impl HsvRange {
     fn contains(&self, h: f32, s: f32, v: f32) -> bool {
         let [h0, h1] = self.hue_deg;
         let hue_ok = if h0 <= h1 {
@@ -154,10 +156,17 @@ mod tests {
             value: [0.9, 0.1],
             ..red
         };
-        assert!(bad
-            .validate("hsv.ranges[0]")
-            .unwrap_err()
-            .to_string()
-            .contains("hsv.ranges[0].value"));
+        assert_eq!(
+            bad.validate().unwrap_err().to_string(),
+            "config key `value` = [0.9, 0.1]: expected [min, max] with min <= max"
+        );
+        let dark = HsvRange {
+            value: [f32::NAN, 0.1],
+            ..red
+        };
+        assert_eq!(
+            dark.validate().unwrap_err().to_string(),
+            "config key `value[0]` = NaN: expected 0 <= x <= 1"
+        );
     }
 }

@@ -31,7 +31,7 @@
 //! output pixel maps to the camera through the camera model scaled to the
 //! output size, as bin projection and POVNav assume.
 
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -199,7 +199,42 @@ impl ModelConfig {
 }
 
 impl Validate for ModelConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
+    fn ranges(&self, r: &mut Ranges) {
+        let i = &self.input;
+        // threads 0: ONNX Runtime's choice.
+        r.key("threads", self.threads, Range::between(0.0, 256.0));
+        r.key(
+            "input.width",
+            i.width,
+            Range::between(1.0, 8192.0).unit("px"),
+        )
+        .key(
+            "input.height",
+            i.height,
+            Range::between(1.0, 8192.0).unit("px"),
+        )
+        .key("input.scale", i.scale, Range::finite())
+        .each("input.mean", &i.mean, Range::finite())
+        .each("input.std", &i.std, Range::above_to(0.0, 1e6));
+        for (n, o) in self.outputs.iter().enumerate() {
+            r.key(
+                &format!("outputs[{n}].classes"),
+                o.classes,
+                Range::between(1.0, 65_536.0),
+            )
+            .key(
+                &format!("outputs[{n}].threshold"),
+                o.threshold,
+                Range::finite(),
+            );
+            if let Some(shape) = &o.ensemble_shape {
+                let name = format!("outputs[{n}].ensemble_shape");
+                r.each(&name, shape, Range::between(1.0, 65_536.0));
+            }
+        }
+    }
+
+    fn check_rules(&self) -> Result<(), ConfigError> {
         let i = &self.input;
         ConfigError::check(
             !i.name.is_empty(),
@@ -207,36 +242,7 @@ impl Validate for ModelConfig {
             "\"\"",
             "the model's input name",
         )?;
-        ConfigError::check(
-            i.width > 0 && i.width <= 8192,
-            "input.width",
-            i.width,
-            "1..=8192 pixels",
-        )?;
-        ConfigError::check(
-            i.height > 0 && i.height <= 8192,
-            "input.height",
-            i.height,
-            "1..=8192 pixels",
-        )?;
-        ConfigError::check(
-            i.scale.is_finite() && i.scale != 0.0,
-            "input.scale",
-            i.scale,
-            "a finite, non-zero factor",
-        )?;
-        ConfigError::check(
-            i.mean.iter().all(|m| m.is_finite()),
-            "input.mean",
-            format!("{:?}", i.mean),
-            "finite values",
-        )?;
-        ConfigError::check(
-            i.std.iter().all(|s| s.is_finite() && *s > 0.0),
-            "input.std",
-            format!("{:?}", i.std),
-            "positive values",
-        )?;
+        ConfigError::check(i.scale != 0.0, "input.scale", i.scale, "a non-zero factor")?;
         ConfigError::check(
             !self.outputs.is_empty(),
             "outputs",
@@ -283,12 +289,6 @@ impl Validate for ModelConfig {
                     )?
                 }
             }
-            ConfigError::check(
-                o.threshold.is_finite(),
-                &key("threshold"),
-                o.threshold,
-                "a finite number",
-            )?;
         }
         let class_outputs = self
             .outputs
@@ -341,7 +341,7 @@ classes = 2
         let e = farsight_stage::parse_config::<ModelConfig>(&bad, "m.toml").unwrap_err();
         assert_eq!(
             e.to_string(),
-            "config key `input.std` = [1.0, 0.0, 1.0]: expected positive values"
+            "config key `input.std[1]` = 0: expected 0 < x <= 1000000"
         );
         let bad = TWIN.replace("classes = 2", "classes = 1");
         let e = farsight_stage::parse_config::<ModelConfig>(&bad, "m.toml").unwrap_err();

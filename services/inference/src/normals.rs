@@ -9,7 +9,7 @@
 //! (above, in the image) a non-navigable structure is non-navigable too.
 
 use farsight_interfaces::camera::Camera;
-use farsight_stage::ConfigError;
+use farsight_stage::{Range, Ranges, Validate};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
@@ -39,32 +39,28 @@ impl Default for NormalsConfig {
     }
 }
 
-impl NormalsConfig {
-    pub fn validate(&self) -> Result<(), ConfigError> {
-        ConfigError::check(
-            (0.0..90.0).contains(&self.max_tilt_deg),
-            "normals.max_tilt_deg",
+impl Validate for NormalsConfig {
+    fn ranges(&self, r: &mut Ranges) {
+        r.key(
+            "max_tilt_deg",
             self.max_tilt_deg,
-            "0..90 degrees",
-        )?;
-        ConfigError::check(
-            (1..=64).contains(&self.step_px),
-            "normals.step_px",
-            self.step_px,
-            "1..=64 pixels",
-        )?;
-        ConfigError::check(
-            self.min_obstacle_px >= 1,
-            "normals.min_obstacle_px",
-            self.min_obstacle_px,
-            "1 or more",
-        )?;
-        ConfigError::check(
-            self.depth_scale_m > 0.0,
-            "normals.depth_scale_m",
-            self.depth_scale_m,
-            "a positive scale",
+            Range::from_below(0.0, 90.0).unit("deg"),
         )
+        .key(
+            "step_px",
+            self.step_px,
+            Range::between(1.0, 64.0).unit("px"),
+        )
+        .key(
+            "min_obstacle_px",
+            self.min_obstacle_px,
+            Range::between(1.0, 1000.0).unit("px"),
+        )
+        .key(
+            "depth_scale_m",
+            self.depth_scale_m,
+            Range::above_to(0.0, 1000.0).unit("m per unit"),
+        );
     }
 }
 

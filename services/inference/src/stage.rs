@@ -22,7 +22,8 @@
 
 use crate::hsv::HsvRange;
 use crate::normals::NormalsConfig;
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::ranges::RATE_HZ;
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -61,7 +62,20 @@ impl Default for InferenceConfig {
 }
 
 impl Validate for InferenceConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
+    fn ranges(&self, r: &mut Ranges) {
+        r.key(
+            "class_table_poll_s",
+            self.class_table_poll_s,
+            Range::above_to(0.0, 3600.0).unit("s"),
+        )
+        .key("health_rate_hz", self.health_rate_hz, RATE_HZ)
+        .nested("normals", &self.normals);
+        for (i, range) in self.hsv.ranges.iter().enumerate() {
+            r.nested(&format!("hsv.ranges[{i}]"), range);
+        }
+    }
+
+    fn check_rules(&self) -> Result<(), ConfigError> {
         farsight_interfaces::topics::validate_name(&self.camera)
             .map_err(|e| ConfigError::invalid("camera", &self.camera, e.why))?;
         match self.backend.as_str() {
@@ -70,7 +84,7 @@ impl Validate for InferenceConfig {
                 "model_config",
                 "\"\"",
                 "the path of a model config TOML",
-            )?,
+            ),
             "hsv" => {
                 ConfigError::check(
                     !self.hsv.ranges.is_empty(),
@@ -78,31 +92,15 @@ impl Validate for InferenceConfig {
                     "[]",
                     "at least one [[hsv.ranges]] table",
                 )?;
-                for (i, r) in self.hsv.ranges.iter().enumerate() {
-                    r.validate(&format!("hsv.ranges[{i}]"))?;
-                }
+                self.hsv.ranges.iter().try_for_each(|r| r.check_rules())
             }
-            "normals" => self.normals.validate()?,
-            other => {
-                return Err(ConfigError::invalid(
-                    "backend",
-                    other,
-                    "\"onnx\", \"hsv\" or \"normals\"",
-                ))
-            }
+            "normals" => Ok(()),
+            other => Err(ConfigError::invalid(
+                "backend",
+                other,
+                "\"onnx\", \"hsv\" or \"normals\"",
+            )),
         }
-        ConfigError::check(
-            self.class_table_poll_s > 0.0,
-            "class_table_poll_s",
-            self.class_table_poll_s,
-            "a positive period in seconds",
-        )?;
-        ConfigError::check(
-            self.health_rate_hz > 0.0,
-            "health_rate_hz",
-            self.health_rate_hz,
-            "a positive rate in Hz",
-        )
     }
 }
 

@@ -81,15 +81,8 @@ pub struct StageInputs {
     groups: Vec<Group>,
 }
 
-/// Checks a stage's `input_deadline_s` config value.
-pub fn check_input_deadline(value_s: f64) -> Result<(), crate::ConfigError> {
-    crate::ConfigError::check(
-        value_s.is_finite() && value_s > 0.0,
-        "input_deadline_s",
-        value_s,
-        "a positive time in seconds",
-    )
-}
+/// The range of a stage's `input_deadline_s` config key.
+pub const INPUT_DEADLINE_S: crate::Range = crate::Range::above_to(0.0, 60.0).unit("s");
 
 /// The default `input_deadline_s` of the stages before the servo: an
 /// input older than this degrades (optional) or stops (required) the stage.

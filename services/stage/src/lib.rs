@@ -4,8 +4,9 @@
 //! loop around its library code:
 //!
 //! - [`StageArgs`]: `--config <file.toml>`, `--log-format text|json`;
-//! - [`load_config`]: TOML into a typed config, then [`Validate`]; every error
-//!   names the file, key, value and what was expected;
+//! - [`load_config`]: TOML into a typed config, then [`Validate`]: each
+//!   numeric key's declared [`Range`], then the rules between keys; every
+//!   error names the file, key, value and what was expected;
 //! - [`init_tracing`]: `RUST_LOG`-style filters, JSON lines for journald;
 //! - [`StageInputs`]: required and optional inputs judged on capture time,
 //!   and the stamp outputs carry;
@@ -17,7 +18,7 @@
 //!   SIGCONT) is not a shutdown: the loop waits on.
 //!
 //! ```no_run
-//! use farsight_stage::{load_config, StageArgs, Validate, ConfigError, Health};
+//! use farsight_stage::{load_config, StageArgs, Validate, Health, Range, Ranges};
 //! use farsight_interfaces::{clock::{Clock, WallClock}, transport::ipc::{self, Bus, Wake}};
 //! use serde::Deserialize;
 //! use std::ops::ControlFlow;
@@ -26,8 +27,8 @@
 //! #[serde(deny_unknown_fields, default)]
 //! struct Config { rate_hz: f64 }
 //! impl Validate for Config {
-//!     fn validate(&self) -> Result<(), ConfigError> {
-//!         ConfigError::check(self.rate_hz > 0.0, "rate_hz", self.rate_hz, "a positive rate")
+//!     fn ranges(&self, r: &mut Ranges) {
+//!         r.key("rate_hz", self.rate_hz, Range::above_to(0.0, 1000.0).unit("Hz"));
 //!     }
 //! }
 //!
@@ -45,9 +46,11 @@
 //! ```
 
 pub mod inputs;
+pub mod ranges;
 pub mod watchdog;
 
 pub use inputs::{Freshness, InputId, Need, StageInputs};
+pub use ranges::{Range, Ranges};
 
 use farsight_interfaces::fixed::FixedStr;
 use farsight_interfaces::msg::{HealthState, StageHealth, Stamp};
@@ -100,6 +103,21 @@ impl ConfigError {
     }
 }
 
+/// Declares the ranges of an optional ENU anchor (`anchor_latitude_deg`,
+/// `anchor_longitude_deg`); [`check_anchor`] checks that both or neither are set.
+pub fn anchor_ranges(r: &mut Ranges, latitude_deg: Option<f64>, longitude_deg: Option<f64>) {
+    r.optional(
+        "anchor_latitude_deg",
+        latitude_deg,
+        Range::between(-90.0, 90.0).unit("deg"),
+    );
+    r.optional(
+        "anchor_longitude_deg",
+        longitude_deg,
+        Range::between(-180.0, 180.0).unit("deg"),
+    );
+}
+
 /// Checks an optional ENU anchor given as `anchor_latitude_deg` and
 /// `anchor_longitude_deg`: both or neither, each in range.
 pub fn check_anchor(
@@ -125,10 +143,24 @@ pub fn check_anchor(
     }
 }
 
-/// Checks a config's values after parsing (ranges, consistency).
+/// Checks a config's values after parsing.
 pub trait Validate {
-    fn validate(&self) -> Result<(), ConfigError> {
+    /// Declares the range of every numeric key ([`Ranges::key`]); nested
+    /// tables through [`Ranges::nested`]. Checked first, at load; the config
+    /// sweep test tries values outside each declared range.
+    fn ranges(&self, _r: &mut Ranges) {}
+
+    /// What a range cannot say: names, choices, keys that depend on each
+    /// other. Runs after the ranges have passed; a parent calls its nested
+    /// tables' rules.
+    fn check_rules(&self) -> Result<(), ConfigError> {
         Ok(())
+    }
+
+    /// Ranges, then rules.
+    fn validate(&self) -> Result<(), ConfigError> {
+        Ranges::of(self).check()?;
+        self.check_rules()
     }
 }
 
@@ -143,10 +175,13 @@ pub fn parse_config<T: DeserializeOwned + Validate>(
         path: origin.to_string(),
         detail: e.to_string().trim_end().to_string(),
     })?;
+    // Declared ranges first: their errors name the range. A non-finite
+    // value in a key no range covers is still refused before the rules see it.
+    Ranges::of(&config).check()?;
     if let Ok(table) = toml::from_str::<toml::Table>(text) {
         refuse_non_finite(&toml::Value::Table(table), "")?;
     }
-    config.validate()?;
+    config.check_rules()?;
     Ok(config)
 }
 
@@ -475,13 +510,15 @@ mod tests {
     }
 
     impl Validate for Cfg {
-        fn validate(&self) -> Result<(), ConfigError> {
-            ConfigError::check(
-                self.rate_hz > 0.0,
+        fn ranges(&self, r: &mut Ranges) {
+            r.key(
                 "rate_hz",
                 self.rate_hz,
-                "a positive rate in Hz",
-            )
+                Range::above_to(0.0, 1000.0).unit("Hz"),
+            );
+        }
+        fn check_rules(&self) -> Result<(), ConfigError> {
+            ConfigError::check(!self.name.contains(' '), "name", &self.name, "no spaces")
         }
     }
 
@@ -490,8 +527,15 @@ mod tests {
         let e = parse_config::<Cfg>("rate_hz = -2.0", "a.toml").unwrap_err();
         assert_eq!(
             e.to_string(),
-            "config key `rate_hz` = -2: expected a positive rate in Hz"
+            "config key `rate_hz` = -2: expected 0 < x <= 1000 Hz"
         );
+        let e = parse_config::<Cfg>("rate_hz = nan", "a.toml").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "config key `rate_hz` = NaN: expected 0 < x <= 1000 Hz"
+        );
+        let e = parse_config::<Cfg>("rate_hz = 1.0\nname = \"a b\"", "a.toml").unwrap_err();
+        assert_eq!(e.to_string(), "config key `name` = a b: expected no spaces");
         let e = parse_config::<Cfg>("rate_hz = \"fast\"", "a.toml").unwrap_err();
         let s = e.to_string();
         assert!(s.starts_with("config a.toml:"), "{s}");

@@ -29,7 +29,7 @@
 //! ```
 
 use farsight_costmap_fusion::hip::hip_combined;
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 /// H future positions in the robot frame (x ahead, y left), metres.
@@ -63,22 +63,20 @@ impl Default for HipPlannerConfig {
 }
 
 impl Validate for HipPlannerConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        ConfigError::check(
-            (0.0..=1.0).contains(&self.phi),
-            "hip.phi",
-            self.phi,
-            "0..=1",
-        )?;
-        for (k, v) in [
-            ("hip.alpha", self.alpha),
-            ("hip.delta", self.delta),
-            ("hip.region_offset_m", self.region_offset_m),
-            ("hip.region_width_m", self.region_width_m),
-        ] {
-            ConfigError::check(v >= 0.0 && v.is_finite(), k, v, "a non-negative number")?;
-        }
-        Ok(())
+    fn ranges(&self, r: &mut Ranges) {
+        r.key("phi", self.phi, Range::between(0.0, 1.0))
+            .key("alpha", self.alpha, Range::between(0.0, 1000.0))
+            .key("delta", self.delta, Range::between(0.0, 1000.0))
+            .key(
+                "region_offset_m",
+                self.region_offset_m,
+                Range::between(0.0, 100.0).unit("m"),
+            )
+            .key(
+                "region_width_m",
+                self.region_width_m,
+                Range::between(0.0, 100.0).unit("m"),
+            );
     }
 }
 
@@ -274,7 +272,7 @@ pub struct LibraryFile {
 }
 
 impl Validate for LibraryFile {
-    fn validate(&self) -> Result<(), ConfigError> {
+    fn check_rules(&self) -> Result<(), ConfigError> {
         ConfigError::check(
             !self.trajectories.is_empty(),
             "trajectories",

@@ -5,7 +5,7 @@
 //! (the paper's Spot and Racer Heavy presets). With uniform bins the same head
 //! is the "goal heuristic" baseline.
 
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::{Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
@@ -55,31 +55,28 @@ impl Default for LrnHeadConfig {
 }
 
 impl Validate for LrnHeadConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        ConfigError::check(
-            self.sigma_goal_deg > 0.0,
-            "lrn.sigma_goal_deg",
+    fn ranges(&self, r: &mut Ranges) {
+        r.key(
+            "sigma_goal_deg",
             self.sigma_goal_deg,
-            "a positive angle",
-        )?;
-        ConfigError::check(
-            self.sigma_previous_deg > 0.0,
-            "lrn.sigma_previous_deg",
-            self.sigma_previous_deg,
-            "a positive angle",
-        )?;
-        ConfigError::check(
-            self.shrink_within_m >= 0.0,
-            "lrn.shrink_within_m",
-            self.shrink_within_m,
-            "0 (off) or a distance",
-        )?;
-        ConfigError::check(
-            self.straight_within_m >= 0.0,
-            "lrn.straight_within_m",
-            self.straight_within_m,
-            "a distance in metres",
+            Range::above_to(0.0, 360.0).unit("deg"),
         )
+        .key(
+            "sigma_previous_deg",
+            self.sigma_previous_deg,
+            Range::above_to(0.0, 360.0).unit("deg"),
+        )
+        // 0: off.
+        .key(
+            "shrink_within_m",
+            self.shrink_within_m,
+            Range::between(0.0, 1000.0).unit("m"),
+        )
+        .key(
+            "straight_within_m",
+            self.straight_within_m,
+            Range::between(0.0, 1000.0).unit("m"),
+        );
     }
 }
 

@@ -17,7 +17,7 @@
 
 use crate::dstar_lite::{CostGrid, DStarLite};
 use farsight_interfaces::msg::{CostCell, CostmapHeader};
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::{Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -55,35 +55,30 @@ impl Default for WorldPlannerConfig {
 }
 
 impl Validate for WorldPlannerConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        for (k, v) in [
-            ("planner.resolution_m", self.resolution_m),
-            ("planner.min_cost_s_per_m", self.min_cost_s_per_m),
-            (
-                "planner.unknown_cost_s_per_m",
-                self.unknown_cost_s_per_m as f64,
-            ),
-        ] {
-            ConfigError::check(v > 0.0 && v.is_finite(), k, v, "a positive number")?;
-        }
-        ConfigError::check(
-            self.inflation_radius_m >= 0.0 && self.inflation_radius_m <= 10.0,
-            "planner.inflation_radius_m",
-            self.inflation_radius_m,
-            "0..=10 m",
-        )?;
-        ConfigError::check(
-            self.margin_m >= 0.0,
-            "planner.margin_m",
-            self.margin_m,
-            "a distance in metres",
-        )?;
-        ConfigError::check(
-            (10..=20_000).contains(&self.max_side_cells),
-            "planner.max_side_cells",
-            self.max_side_cells,
-            "10..=20000",
+    fn ranges(&self, r: &mut Ranges) {
+        let cost = Range::above_to(0.0, 1000.0).unit("s/m");
+        r.key(
+            "resolution_m",
+            self.resolution_m,
+            Range::above_to(0.0, 100.0).unit("m"),
         )
+        .key(
+            "margin_m",
+            self.margin_m,
+            Range::between(0.0, 10_000.0).unit("m"),
+        )
+        .key("unknown_cost_s_per_m", self.unknown_cost_s_per_m, cost)
+        .key("min_cost_s_per_m", self.min_cost_s_per_m, cost)
+        .key(
+            "max_side_cells",
+            self.max_side_cells,
+            Range::between(10.0, 20_000.0),
+        )
+        .key(
+            "inflation_radius_m",
+            self.inflation_radius_m,
+            Range::between(0.0, 10.0).unit("m"),
+        );
     }
 }
 
@@ -124,8 +119,10 @@ impl WorldPlanner {
             start_m[0].max(goal_m[0]) + cfg.margin_m,
             start_m[1].max(goal_m[1]) + cfg.margin_m,
         ];
-        let side =
-            |a: f64, b: f64| (((b - a) / r).ceil() as usize + 1).clamp(2, cfg.max_side_cells);
+        // Clamped in f64: a far goal must not overflow the cell count.
+        let side = |a: f64, b: f64| {
+            (((b - a) / r).ceil() + 1.0).clamp(2.0, cfg.max_side_cells as f64) as usize
+        };
         let (w, h) = (side(lo[0], hi[0]), side(lo[1], hi[1]));
         let mid = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
         let origin_m = [

@@ -16,7 +16,7 @@
 //! assert_eq!(p.hog_px, (20.0, 10.0)); // straight ahead, at the horizon
 //! ```
 
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::{FRAC_PI_2, PI};
 
@@ -54,36 +54,45 @@ impl Default for PovnavConfig {
 }
 
 impl Validate for PovnavConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        ConfigError::check(
-            self.min_obstacle_px >= 1,
-            "povnav.min_obstacle_px",
+    fn ranges(&self, r: &mut Ranges) {
+        r.key(
+            "min_obstacle_px",
             self.min_obstacle_px,
-            "1 or more",
-        )?;
+            Range::between(1.0, 1000.0).unit("px"),
+        )
+        .key(
+            "opening_columns",
+            self.opening_columns,
+            Range::between(1.0, 999.0).unit("columns"),
+        )
+        .key(
+            "w_navigation",
+            self.w_navigation,
+            Range::between(0.0, 100.0),
+        )
+        .key(
+            "w_exploration",
+            self.w_exploration,
+            Range::between(0.0, 100.0),
+        )
+        .key(
+            "path_row_step",
+            self.path_row_step,
+            Range::between(1.0, 1000.0).unit("rows"),
+        )
+        .key(
+            "max_lookahead_px",
+            self.max_lookahead_px,
+            Range::above_to(0.0, 10_000.0).unit("px"),
+        );
+    }
+
+    fn check_rules(&self) -> Result<(), ConfigError> {
         ConfigError::check(
             self.opening_columns % 2 == 1,
             "povnav.opening_columns",
             self.opening_columns,
             "an odd number of columns",
-        )?;
-        ConfigError::check(
-            self.w_navigation >= 0.0 && self.w_exploration >= 0.0,
-            "povnav.w_navigation/w_exploration",
-            format!("{}/{}", self.w_navigation, self.w_exploration),
-            "non-negative weights",
-        )?;
-        ConfigError::check(
-            self.path_row_step >= 1,
-            "povnav.path_row_step",
-            self.path_row_step,
-            "1 or more",
-        )?;
-        ConfigError::check(
-            self.max_lookahead_px > 0.0,
-            "povnav.max_lookahead_px",
-            self.max_lookahead_px,
-            "a positive radius",
         )
     }
 }
@@ -282,7 +291,7 @@ pub fn plan(
         // horizon pixel there is still a valid direction to head.
         let hw = half_width_px.get(v).copied().unwrap_or(0);
         let lo = u.saturating_sub(hw) as i64;
-        let hi = (u + hw).min(width - 1) as i64;
+        let hi = u.saturating_add(hw).min(width - 1) as i64;
         if !footprint_clear(&nav[v * width..][..width], lo, hi, cfg.min_obstacle_px) {
             return;
         }
@@ -519,7 +528,9 @@ pub fn safe_half_widths(
                 0
             } else {
                 let z = fy * camera_height_m / below;
-                (fx * half / z).round() as usize
+                // Wider than any image is as blocked as the whole row; the
+                // cap keeps `u +- hw` far from overflow.
+                (fx * half / z).round().clamp(0.0, 1_048_576.0) as usize
             }
         })
         .collect()

@@ -34,7 +34,9 @@ use crate::hip::HipPlannerConfig;
 use crate::lrn_head::LrnHeadConfig;
 use crate::planner::WorldPlannerConfig;
 use crate::povnav::PovnavConfig;
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::inputs::INPUT_DEADLINE_S;
+use farsight_stage::ranges::RATE_HZ;
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -88,7 +90,42 @@ impl Default for SubgoalStageConfig {
 }
 
 impl Validate for SubgoalStageConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
+    fn ranges(&self, r: &mut Ranges) {
+        r.key(
+            "robot_width_m",
+            self.robot_width_m,
+            Range::above_to(0.0, 10.0).unit("m"),
+        )
+        .key(
+            "safety_margin_m",
+            self.safety_margin_m,
+            Range::between(0.0, 10.0).unit("m"),
+        )
+        .key(
+            "subgoal_distance_m",
+            self.subgoal_distance_m,
+            Range::above_to(0.0, 1000.0).unit("m"),
+        )
+        .key(
+            "path_max_range_m",
+            self.path_max_range_m,
+            Range::above_to(0.0, 1000.0).unit("m"),
+        )
+        .key(
+            "replan_rate_hz",
+            self.replan_rate_hz,
+            Range::above_to(0.0, 100.0).unit("Hz"),
+        )
+        .key("health_rate_hz", self.health_rate_hz, RATE_HZ)
+        .key("input_deadline_s", self.input_deadline_s, INPUT_DEADLINE_S)
+        .nested("povnav", &self.povnav)
+        .nested("lrn", &self.lrn)
+        .nested("planner", &self.planner)
+        .nested("hip", &self.hip);
+        farsight_stage::anchor_ranges(r, self.anchor_latitude_deg, self.anchor_longitude_deg);
+    }
+
+    fn check_rules(&self) -> Result<(), ConfigError> {
         ConfigError::check(
             ["povnav", "lrn", "goal_heuristic", "dstar_lite", "hip"]
                 .contains(&self.method.as_str()),
@@ -104,49 +141,9 @@ impl Validate for SubgoalStageConfig {
         )?;
         farsight_interfaces::topics::validate_name(&self.costmap)
             .map_err(|e| ConfigError::invalid("costmap", &self.costmap, e.why))?;
-        ConfigError::check(
-            self.replan_rate_hz > 0.0 && self.replan_rate_hz <= 100.0,
-            "replan_rate_hz",
-            self.replan_rate_hz,
-            "0 < rate <= 100 Hz",
-        )?;
         farsight_interfaces::topics::validate_name(&self.camera)
             .map_err(|e| ConfigError::invalid("camera", &self.camera, e.why))?;
-        ConfigError::check(
-            self.robot_width_m > 0.0,
-            "robot_width_m",
-            self.robot_width_m,
-            "a positive width in metres",
-        )?;
-        ConfigError::check(
-            self.safety_margin_m >= 0.0,
-            "safety_margin_m",
-            self.safety_margin_m,
-            "a margin in metres",
-        )?;
-        ConfigError::check(
-            self.subgoal_distance_m > 0.0,
-            "subgoal_distance_m",
-            self.subgoal_distance_m,
-            "a positive distance",
-        )?;
-        ConfigError::check(
-            self.path_max_range_m > 0.0,
-            "path_max_range_m",
-            self.path_max_range_m,
-            "a positive distance in metres",
-        )?;
-        ConfigError::check(
-            self.health_rate_hz > 0.0,
-            "health_rate_hz",
-            self.health_rate_hz,
-            "a positive rate in Hz",
-        )?;
-        farsight_stage::inputs::check_input_deadline(self.input_deadline_s)?;
         farsight_stage::check_anchor(self.anchor_latitude_deg, self.anchor_longitude_deg)?;
-        self.povnav.validate()?;
-        self.lrn.validate()?;
-        self.planner.validate()?;
-        self.hip.validate()
+        self.povnav.check_rules()
     }
 }

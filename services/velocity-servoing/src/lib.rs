@@ -31,7 +31,7 @@
 pub mod stage;
 
 use farsight_interfaces::msg::{CommandReason, Path, PathFrame, Pose};
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::{Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 /// Servo parameters (defaults from the POVNav code: |v| <= 0.5 m/s,
@@ -79,33 +79,58 @@ impl Default for ServoConfig {
 }
 
 impl Validate for ServoConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        for (k, v) in [
-            ("servo.k_linear", self.k_linear),
-            ("servo.k_angular", self.k_angular),
-            ("servo.max_linear_mps", self.max_linear_mps),
-            ("servo.max_angular_radps", self.max_angular_radps),
-            ("servo.max_linear_accel_mps2", self.max_linear_accel_mps2),
-            ("servo.lookahead_m", self.lookahead_m),
-            (
-                "servo.max_angular_accel_radps2",
-                self.max_angular_accel_radps2,
-            ),
-        ] {
-            ConfigError::check(v > 0.0 && v.is_finite(), k, v, "a positive number")?;
-        }
-        ConfigError::check(
-            self.max_lateral_accel_mps2 >= 0.0,
-            "servo.max_lateral_accel_mps2",
-            self.max_lateral_accel_mps2,
-            "0 (off) or positive",
-        )?;
-        ConfigError::check(
-            self.goal_radius_m >= 0.0,
-            "servo.goal_radius_m",
-            self.goal_radius_m,
-            "a distance in metres",
+    fn ranges(&self, r: &mut Ranges) {
+        r.key(
+            "desired_proximity_px",
+            self.desired_proximity_px,
+            Range::between(0.0, 10_000.0).unit("px"),
         )
+        .key(
+            "k_linear",
+            self.k_linear,
+            Range::above_to(0.0, 10.0).unit("m/s per px"),
+        )
+        .key(
+            "k_angular",
+            self.k_angular,
+            Range::above_to(0.0, 100.0).unit("rad/s per rad"),
+        )
+        .key(
+            "max_linear_mps",
+            self.max_linear_mps,
+            Range::above_to(0.0, 20.0).unit("m/s"),
+        )
+        .key(
+            "max_angular_radps",
+            self.max_angular_radps,
+            Range::above_to(0.0, 10.0).unit("rad/s"),
+        )
+        .key(
+            "max_linear_accel_mps2",
+            self.max_linear_accel_mps2,
+            Range::above_to(0.0, 50.0).unit("m/s^2"),
+        )
+        .key(
+            "max_angular_accel_radps2",
+            self.max_angular_accel_radps2,
+            Range::above_to(0.0, 100.0).unit("rad/s^2"),
+        )
+        // 0: no lateral limit.
+        .key(
+            "max_lateral_accel_mps2",
+            self.max_lateral_accel_mps2,
+            Range::between(0.0, 50.0).unit("m/s^2"),
+        )
+        .key(
+            "goal_radius_m",
+            self.goal_radius_m,
+            Range::between(0.0, 100.0).unit("m"),
+        )
+        .key(
+            "lookahead_m",
+            self.lookahead_m,
+            Range::above_to(0.0, 100.0).unit("m"),
+        );
     }
 }
 

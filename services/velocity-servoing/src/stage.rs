@@ -38,8 +38,9 @@
 //! ```
 
 use crate::ServoConfig;
+use farsight_stage::ranges::RATE_HZ;
 pub use farsight_stage::ClockSource;
-use farsight_stage::{ConfigError, Validate};
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 /// Which input the servo follows.
@@ -88,34 +89,31 @@ impl Default for ServoStageConfig {
 }
 
 impl Validate for ServoStageConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        ConfigError::check(
-            self.output_rate_hz > 0.0 && self.output_rate_hz <= 1000.0,
-            "output_rate_hz",
-            self.output_rate_hz,
-            "0 < rate <= 1000 Hz",
-        )?;
-        ConfigError::check(
-            self.subgoal_deadline_s > 0.0,
-            "subgoal_deadline_s",
-            self.subgoal_deadline_s,
-            "a positive time in seconds",
-        )?;
+    fn ranges(&self, r: &mut Ranges) {
+        r.key("output_rate_hz", self.output_rate_hz, RATE_HZ)
+            .key(
+                "subgoal_deadline_s",
+                self.subgoal_deadline_s,
+                Range::above_to(0.0, 60.0).unit("s"),
+            )
+            .key(
+                "command_ttl_s",
+                self.command_ttl_s,
+                Range::above_to(0.0, 60.0).unit("s"),
+            )
+            .key("health_rate_hz", self.health_rate_hz, RATE_HZ)
+            .nested("servo", &self.servo);
+        farsight_stage::anchor_ranges(r, self.anchor_latitude_deg, self.anchor_longitude_deg);
+    }
+
+    fn check_rules(&self) -> Result<(), ConfigError> {
         // A TTL of about one output period would stop the base between two
         // commands of a healthy servo at the least jitter.
         ConfigError::check(
-            self.command_ttl_s.is_finite()
-                && self.command_ttl_s * self.output_rate_hz >= 2.0
-                && self.command_ttl_s <= 60.0,
+            self.command_ttl_s * self.output_rate_hz >= 2.0,
             "command_ttl_s",
             self.command_ttl_s,
-            "seconds, at least two output periods (2 / output_rate_hz) and at most 60",
-        )?;
-        ConfigError::check(
-            self.health_rate_hz > 0.0,
-            "health_rate_hz",
-            self.health_rate_hz,
-            "a positive rate in Hz",
+            "seconds, at least two output periods (2 / output_rate_hz)",
         )?;
         ConfigError::check(
             !self.path_topic.is_empty() && !self.path_topic.contains(char::is_whitespace),
@@ -132,8 +130,7 @@ impl Validate for ServoStageConfig {
             &self.command_topic,
             "a command topic: \"cmd/velocity\" or a command mux input such as \"cmd/autonomy\"",
         )?;
-        farsight_stage::check_anchor(self.anchor_latitude_deg, self.anchor_longitude_deg)?;
-        self.servo.validate()
+        farsight_stage::check_anchor(self.anchor_latitude_deg, self.anchor_longitude_deg)
     }
 }
 

@@ -1,0 +1,81 @@
+//! The bin-projection stage's config (`bin-projection.toml`, defaults shown):
+//!
+//! ```toml
+//! method = "lrn"                 # or "fitam"
+//! cameras = ["front"]            # reads perception/<camera>/heatmap (lrn) or
+//!                                # perception/<camera>/far_field (fitam), and camera/<camera>/info
+//! input_deadline_s = 1.0         # a camera whose newest capture is this much older than
+//!                                # the newest of any camera drops out of the bins
+//! health_rate_hz = 1.0
+//! [bins]                         # see farsight_bin_projection::LrnBinsConfig (Spot preset)
+//! bin_width_deg = 5.0
+//! h_thresh = 0.7
+//! threshold_on = "pixels"        # or "bins"
+//! alpha = 0.1
+//! [fitam]                        # see farsight_bin_projection::fitam::FitamBinsConfig
+//! heading_bins = 32
+//! range_edges_m = [25.0, 50.0, 75.0, 100.0]
+//! class_speeds_mps = [0.5, 2.25, 4.25]
+//! variance = "max_probability"   # R = 1 - max p (reference code), or "entropy" (paper)
+//! ```
+
+use crate::fitam::FitamBinsConfig;
+use crate::LrnBinsConfig;
+use farsight_stage::inputs::INPUT_DEADLINE_S;
+use farsight_stage::ranges::RATE_HZ;
+use farsight_stage::{ConfigError, Ranges, Validate};
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BinProjectionConfig {
+    pub method: String,
+    pub cameras: Vec<String>,
+    pub input_deadline_s: f64,
+    pub health_rate_hz: f64,
+    pub bins: LrnBinsConfig,
+    pub fitam: FitamBinsConfig,
+}
+
+impl Default for BinProjectionConfig {
+    fn default() -> Self {
+        Self {
+            method: "lrn".into(),
+            cameras: vec!["front".into()],
+            input_deadline_s: farsight_stage::inputs::DEFAULT_INPUT_DEADLINE_S,
+            health_rate_hz: 1.0,
+            bins: LrnBinsConfig::default(),
+            fitam: FitamBinsConfig::default(),
+        }
+    }
+}
+
+impl Validate for BinProjectionConfig {
+    fn ranges(&self, r: &mut Ranges) {
+        r.key("input_deadline_s", self.input_deadline_s, INPUT_DEADLINE_S)
+            .key("health_rate_hz", self.health_rate_hz, RATE_HZ)
+            .nested("bins", &self.bins)
+            .nested("fitam", &self.fitam);
+    }
+
+    fn check_rules(&self) -> Result<(), ConfigError> {
+        ConfigError::check(
+            ["lrn", "fitam"].contains(&self.method.as_str()),
+            "method",
+            &self.method,
+            "\"lrn\" or \"fitam\"",
+        )?;
+        ConfigError::check(
+            !self.cameras.is_empty(),
+            "cameras",
+            "[]",
+            "at least one camera name",
+        )?;
+        for c in &self.cameras {
+            farsight_interfaces::topics::validate_name(c)
+                .map_err(|e| ConfigError::invalid("cameras", c, e.why))?;
+        }
+        self.bins.check_rules()?;
+        self.fitam.check_rules()
+    }
+}
