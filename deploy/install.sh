@@ -17,7 +17,11 @@
 # Installs: binaries to /usr/local/bin, ONNX Runtime to /usr/local/lib/farsight,
 # models to /usr/local/share/farsight/models, units to /etc/systemd/system,
 # tmpfiles.d entry, stage configs to /etc/farsight (an existing config is kept:
-# the new one goes beside it as .new), the service user `farsight`.
+# the new one goes beside it as .new), the service user `farsight`, and the
+# zenoh router config /etc/farsight/zenoh/robot.json5, generated from the
+# installed bridge.toml (its ACL follows the bridge's imports). The secrets in
+# /etc/farsight/zenoh are root:farsight 0640: the units run as farsight. When
+# staging as root, they get group farsight if that group exists here.
 set -euo pipefail
 repo="$(cd "$(dirname "$0")/.." && pwd)"
 prefix="" bin_dir="" ort_lib="${ORT_DYLIB_PATH:-}" models="$repo/../shared/models" dry=0
@@ -28,7 +32,7 @@ while [ $# -gt 0 ]; do
     --ort-lib) ort_lib="$2"; shift 2 ;;
     --models) models="$2"; shift 2 ;;
     --dry-run) dry=1; shift ;;
-    -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,24p' "$0"; exit 0 ;;
     *) echo "install.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -46,6 +50,18 @@ fi
 for s in $stages; do
   [ -x "$bin_dir/farsight-$s" ] || { echo "install.sh: $bin_dir/farsight-$s missing (build first or pass --bin-dir)" >&2; exit 1; }
 done
+
+# The service user first: the secrets below are installed with its group.
+if [ -z "$prefix" ] && ! id farsight >/dev/null 2>&1; then
+  act useradd --system --home-dir /var/lib/farsight --shell /usr/sbin/nologin --user-group farsight
+fi
+# Owner and group of the files the units must read but others must not.
+secret_owner=()
+if [ "$(id -u)" = 0 ] && { [ -z "$prefix" ] || getent group farsight >/dev/null; }; then
+  secret_owner=(-o root -g farsight)
+else
+  say "no group farsight here (or not root): the files in $prefix/etc/farsight/zenoh stay $(id -un)-only; on the robot: chgrp farsight them"
+fi
 
 act install -d "$prefix/usr/local/bin" "$prefix/usr/local/lib/farsight" \
   "$prefix/usr/local/share/farsight/models" "$prefix/usr/local/share/doc/farsight" \
@@ -87,13 +103,32 @@ for s in $stages; do
     act install -m 0644 "$repo/deploy/config/$s.toml" "$dest"
   fi
 done
-act install -d "$prefix/etc/farsight/zenoh"
+act install -d -m 0750 "${secret_owner[@]}" "$prefix/etc/farsight/zenoh"
+# The router config (with the robot's ACL) comes from the bridge config that
+# is now installed: the user's if kept, else the shipped one.
+bridge_toml="$prefix/etc/farsight/bridge.toml"
+[ -e "$bridge_toml" ] || bridge_toml="$repo/deploy/config/bridge.toml"
+router="$(mktemp)"
+trap 'rm -f "$router"' EXIT
+say "generate robot.json5: $bin_dir/farsight-bridge --config $bridge_toml --print-router-config"
+"$bin_dir/farsight-bridge" --config "$bridge_toml" --print-router-config > "$router"
 for f in robot.json5 users.txt; do
   dest="$prefix/etc/farsight/zenoh/$f"
-  if [ -e "$dest" ]; then
-    say "kept your $dest"
+  src="$repo/deploy/zenoh/$f"
+  [ "$f" = robot.json5 ] && src="$router"
+  if [ -e "$dest" ] && cmp -s "$src" "$dest"; then
+    say "$dest is up to date"
+  elif [ -e "$dest" ]; then
+    act install -m 0640 "${secret_owner[@]}" "$src" "$dest.new"
+    say "kept your $dest; the generated one is in $dest.new (its ACL follows bridge.toml's imports; the bridge warns while they differ)"
   else
-    act install -m 0640 "$repo/deploy/zenoh/$f" "$dest"
+    act install -m 0640 "${secret_owner[@]}" "$src" "$dest"
+  fi
+  # A file kept from an older install may be root:root, which the units cannot read.
+  if [ -e "$dest" ] && [ ${#secret_owner[@]} -gt 0 ] \
+     && [ "$(stat -c %U:%G:%a "$dest")" != root:farsight:640 ]; then
+    act chown root:farsight "$dest"
+    act chmod 0640 "$dest"
   fi
 done
 say "change the passwords in $prefix/etc/farsight/zenoh/users.txt and robot.json5 before the robot leaves the lab"
@@ -104,9 +139,6 @@ act install -m 0644 "$repo/README.md" "$prefix/usr/local/share/doc/farsight/READ
 if [ -n "$prefix" ]; then
   say "staged under $prefix (no user created, systemd not touched)"
   exit 0
-fi
-if ! id farsight >/dev/null 2>&1; then
-  act useradd --system --home-dir /var/lib/farsight --shell /usr/sbin/nologin --user-group farsight
 fi
 act systemd-tmpfiles --create /usr/lib/tmpfiles.d/farsight.conf
 act systemctl daemon-reload

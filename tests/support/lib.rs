@@ -298,6 +298,16 @@ impl Proc {
         for (k, v) in env {
             cmd.env(k, v);
         }
+        Self::spawn(name, cmd)
+    }
+
+    /// Starts `cmd` as it is (its stdout and stderr are taken over): for
+    /// commands that are not a workspace binary in a namespace, e.g. an
+    /// installed binary run as another user.
+    pub fn spawn(name: &str, mut cmd: Command) -> Self {
+        cmd.stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
         let mut child = cmd
             .spawn()
             .unwrap_or_else(|e| panic!("starting {name}: {e}"));

@@ -19,6 +19,7 @@
 //! listen = []                  # e.g. ["tcp/0.0.0.0:7447"]
 //! connect = []                 # e.g. ["tcp/192.168.1.10:7447"]
 //! config_file = ""             # a full zenoh json5 config (ACL, TLS); replaces the three keys above
+//!                              # (the robot's router: `farsight-bridge --print-router-config`, see [`acl`])
 //!
 //! [[export]]                   # default exports: health and commands, no images
 //! topic = "camera/front/image"
@@ -44,6 +45,8 @@ use farsight_stage::ranges::RATE_HZ;
 use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 use std::cell::RefCell;
+
+pub mod acl;
 
 /// The bridge's config file.
 #[derive(Debug, Clone, Serialize, Deserialize)]

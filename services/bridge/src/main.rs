@@ -1,5 +1,9 @@
 //! `farsight-bridge`: wires [`farsight_bridge`] to the transports. See the
 //! library docs for the config file.
+//!
+//! `farsight-bridge [--config bridge.toml] --print-router-config` prints the
+//! robot's zenoh router config for that bridge config (its ACL generated
+//! from the import list, [`farsight_bridge::acl`]) and exits.
 
 use anyhow::{Context, Result};
 use farsight_bridge::{BridgeConfig, Export, Import};
@@ -19,12 +23,23 @@ fn main() {
 }
 
 fn run() -> Result<()> {
-    let args = StageArgs::parse(STAGE)?;
+    let mut argv: Vec<String> = std::env::args().skip(1).collect();
+    let print_router = argv.iter().any(|a| a == "--print-router-config");
+    argv.retain(|a| a != "--print-router-config");
+    let args = StageArgs::parse_from(STAGE, argv)?;
+    if print_router {
+        let config: BridgeConfig = load_config(args.config.as_deref())?;
+        print!("{}", farsight_bridge::acl::router_config(&config));
+        return Ok(());
+    }
     farsight_stage::init_tracing(args.log_format);
     let config: BridgeConfig = load_config(args.config.as_deref())?;
+    let zenoh_config = config.zenoh.to_zenoh(&args.config_dir())?;
+    if let Some(why) = farsight_bridge::acl::mismatch(&zenoh_config, &config) {
+        tracing::warn!(file = %config.zenoh.config_file, "zenoh config: {why}");
+    }
     let bus = Bus::open(STAGE)?;
-    let net = NetBus::open(config.zenoh.to_zenoh(&args.config_dir())?, &config.robot)
-        .context("opening the zenoh session")?;
+    let net = NetBus::open(zenoh_config, &config.robot).context("opening the zenoh session")?;
     // A laptop lists live stages with a liveliness query on farsight/<robot>/alive/**.
     let _alive = net
         .session()
