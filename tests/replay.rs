@@ -368,16 +368,34 @@ fn a_recorder_killed_mid_run_leaves_a_file_that_reads_to_its_last_message() {
         let (h, d) = wire::split_slice::<farsight_interfaces::msg::ImageHeader>(&m.data).unwrap();
         h.validate(d.len()).unwrap();
     }
+    // It replays up to the cut, then exits 1 naming where the data ends
+    // (--allow-truncated would make that 0; tests/mcap_inputs.rs).
     let mut again = Proc::start(
         "farsight",
         &["replay", file.to_str().unwrap(), "--as-fast"],
         &ns,
     );
-    assert_eq!(
-        again.wait_exit(Duration::from_secs(30)),
-        Some(0),
-        "{}",
-        again.stderr_so_far()
+    let code = again.wait_exit(Duration::from_secs(30));
+    let out: Vec<String> = std::iter::from_fn(|| {
+        again
+            .wait_line(Duration::from_millis(100), |_| true)
+            .map(|(_, l)| l)
+    })
+    .collect();
+    let err = again.stderr_to_end();
+    assert_eq!(code, Some(1), "{out:?}\n{err}");
+    let cut_at = info.truncated.as_ref().unwrap().offset;
+    assert!(
+        err.contains(&format!(
+            "error: {}: truncated at byte {cut_at} of ",
+            file.display()
+        )),
+        "{err}"
+    );
+    let want = format!("  {:<34} {:>8}", "camera/front/image", images.count);
+    assert!(
+        out.iter().any(|l| l.starts_with("replayed ")) && out.contains(&want),
+        "{out:?}"
     );
 }
 

@@ -14,7 +14,7 @@ use farsight_interfaces::msg::{HealthState, ImageHeader, Stamp};
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::Bus;
 use farsight_stage::{load_config, Health, StageArgs};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{sync_channel, RecvTimeoutError, SyncSender};
 use std::sync::Arc;
@@ -35,6 +35,8 @@ enum Event {
         depth: Option<(ImageHeader, Vec<u8>)>,
     },
     Dropped(String),
+    /// The source cannot go on (a recording damaged under it): why.
+    Failed(usize, String),
     End(usize),
 }
 
@@ -180,16 +182,24 @@ fn mcap_source(
             tx.send(event).is_ok()
         });
         match played {
-            Ok(0) => {
+            Ok(p) if p.frames == 0 => {
                 let _ = tx.send(Event::Dropped(format!(
-                    "no messages on topic {} in the recording",
-                    entry.topic
+                    "no messages on topic {} in the recording{}",
+                    entry.topic,
+                    p.truncated
+                        .map(|t| format!(" before it was cut ({t})"))
+                        .unwrap_or_default()
                 )));
                 break;
             }
+            // A truncated file was reported at start: every pass plays up
+            // to the cut.
             Ok(_) => {}
+            // Checked whole at start, so damage here is the file changing
+            // under the stage: stop this camera.
             Err(e) => {
-                let _ = tx.send(Event::Dropped(e));
+                let _ = tx.send(Event::Failed(i, e));
+                return;
             }
         }
         pass += 1;
@@ -253,6 +263,9 @@ fn run() -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     let (tx, rx) = sync_channel::<Event>(2 * cameras.len());
     let mut threads = Vec::new();
+    // Recordings cut short (camera, where): played up to the cut, then the
+    // stage exits 1 naming it.
+    let mut truncated = Vec::new();
     for (i, (entry, cam)) in config.cameras.iter().zip(&cameras).enumerate() {
         let size = (cam.model.width, cam.model.height);
         let (tx, stop) = (tx.clone(), stop.clone());
@@ -278,10 +291,21 @@ fn run() -> Result<()> {
             }
             "mcap" => {
                 let path = base.join(&entry.file);
+                // The whole file is checked before the stage is ready: not
+                // an MCAP file or damaged (a bad chunk CRC) is a start-up
+                // error naming the file and the offset.
                 let file = McapFile::open(&path)
                     .map_err(anyhow::Error::msg)
                     .with_context(|| format!("camera {}", cam.name))?;
-                let channels = file.channels().map_err(anyhow::Error::msg)?;
+                let contents = file
+                    .contents()
+                    .map_err(anyhow::Error::msg)
+                    .with_context(|| format!("camera {}", cam.name))?;
+                let channels = contents.channels;
+                if let Some(t) = contents.truncated {
+                    tracing::warn!(camera = %cam.name, "{t}; playing the frames before the cut");
+                    truncated.push((i, t));
+                }
                 if !channels.iter().any(|(t, _, _)| *t == entry.topic) {
                     let topics: Vec<String> = channels
                         .iter()
@@ -310,8 +334,20 @@ fn run() -> Result<()> {
         }
     }
     drop(tx);
-    health.set(HealthState::OK, "");
+    match truncated.first() {
+        Some((_, t)) => {
+            let name = Path::new(&t.path)
+                .file_name()
+                .map_or(t.path.clone(), |n| n.to_string_lossy().into_owned());
+            health.set(
+                HealthState::DEGRADED,
+                &format!("{name} truncated at byte {}", t.offset),
+            );
+        }
+        None => health.set(HealthState::OK, ""),
+    }
     farsight_stage::announce_ready(STAGE);
+    let mut failed: Option<anyhow::Error> = None;
 
     let clock = WallClock;
     let mut seq = vec![0u64; cameras.len()];
@@ -428,6 +464,12 @@ fn run() -> Result<()> {
                 health.input();
                 health.dropped(&why);
             }
+            Ok(Event::Failed(camera, why)) => {
+                tracing::error!(camera = %cameras[camera].name, "{why}");
+                health.set(HealthState::ERROR, &why);
+                failed = Some(anyhow::anyhow!("camera {}: {why}", cameras[camera].name));
+                break;
+            }
             Ok(Event::End(camera)) => {
                 ended += 1;
                 tracing::info!(camera = %cameras[camera].name, published = seq[camera], "all frames published");
@@ -446,5 +488,19 @@ fn run() -> Result<()> {
         let _ = t.join();
     }
     health.stopping(clock.now_ns());
+    if let Some(e) = failed {
+        return Err(e);
+    }
+    // Every source played to its end (not stopped by a signal): a
+    // recording that was cut short is reported with where it ends.
+    if ended == cameras.len() {
+        if let Some((camera, t)) = truncated.into_iter().next() {
+            bail!(
+                "camera {}: {t}; published {} frames before the cut",
+                cameras[camera].name,
+                seq[camera]
+            );
+        }
+    }
     Ok(())
 }

@@ -2,11 +2,16 @@
 //! `CompressedImage`, CDR-encoded) and farsight's own recordings (channels with
 //! message encoding `farsight-wire`, payload = [`farsight_interfaces::transport::wire`]
 //! header + pixels). Messages of one topic are replayed in file order, paced by
-//! their log times.
+//! their log times. The file is verified as it is read (farsight-recording's
+//! `mcap_file`): not an MCAP file or damaged is an error naming the file and
+//! the byte offset; a truncated file plays up to its last complete chunk.
 
 use crate::ros_cdr;
 use farsight_interfaces::msg::{ImageHeader, PixelEncoding};
 use farsight_interfaces::transport::wire;
+use farsight_recording::mcap_file::ReadEnd;
+pub use farsight_recording::mcap_file::Truncation;
+use std::ops::ControlFlow;
 use std::path::Path;
 
 /// Message encoding of farsight's own MCAP channels.
@@ -20,82 +25,117 @@ pub struct RecordedFrame {
     pub image: Result<(ImageHeader, Vec<u8>), String>,
 }
 
-/// A memory-mapped MCAP file (recordings can be much larger than memory).
+/// A memory-mapped MCAP file, read through farsight-recording's verified
+/// reader: a file that is not an MCAP file, or is damaged (a bad chunk CRC),
+/// is an error naming the file and the byte offset; a truncated one plays up
+/// to its last complete chunk.
 pub struct McapFile {
-    map: memmap2::Mmap,
-    path: String,
+    file: farsight_recording::mcap_file::McapFile,
+}
+
+/// Channels of a file, and whether it was cut short.
+pub struct Contents {
+    /// Topic, message encoding and schema name of each channel.
+    pub channels: Vec<(String, String, String)>,
+    /// Where the file was cut (a recorder killed mid-write), if it was.
+    pub truncated: Option<Truncation>,
+}
+
+/// How a pass over one topic ended.
+#[derive(Debug)]
+pub struct Played {
+    /// Messages on the topic handed to the callback.
+    pub frames: usize,
+    /// Where the file was cut, if it was: every frame before it was played.
+    pub truncated: Option<Truncation>,
 }
 
 impl McapFile {
+    /// Opens `path`, refusing a file that does not start with the MCAP magic.
     pub fn open(path: &Path) -> Result<Self, String> {
-        let file =
-            std::fs::File::open(path).map_err(|e| format!("opening {}: {e}", path.display()))?;
-        // SAFETY: the file is only read; a recording being appended to while
-        // it is replayed shows up as a truncated stream, which is handled.
-        let map = unsafe { memmap2::Mmap::map(&file) }
-            .map_err(|e| format!("mapping {}: {e}", path.display()))?;
-        Ok(Self {
-            map,
-            path: path.display().to_string(),
+        farsight_recording::mcap_file::McapFile::open(path)
+            .map(|file| Self { file })
+            .map_err(|e| e.to_string())
+    }
+
+    pub fn path(&self) -> &str {
+        self.file.path()
+    }
+
+    /// Reads and checks the whole file: its channels, and where it was cut.
+    /// Damage anywhere (a bad chunk CRC) is an error naming the offset.
+    pub fn contents(&self) -> Result<Contents, String> {
+        let mut out = std::collections::BTreeSet::new();
+        let mut seen = std::collections::HashSet::new();
+        let end = self
+            .file
+            .read(|m| {
+                if seen.insert(m.channel.id) {
+                    let schema = m
+                        .channel
+                        .schema
+                        .as_ref()
+                        .map(|s| s.name.clone())
+                        .unwrap_or_default();
+                    out.insert((
+                        m.channel.topic.clone(),
+                        m.channel.message_encoding.clone(),
+                        schema,
+                    ));
+                }
+                ControlFlow::Continue(())
+            })
+            .map_err(|e| e.to_string())?;
+        Ok(Contents {
+            channels: out.into_iter().collect(),
+            truncated: match end {
+                ReadEnd::Truncated(t) => Some(t),
+                ReadEnd::Complete | ReadEnd::Stopped => None,
+            },
         })
     }
 
-    /// Topics of the file's channels with their message encoding and schema name.
-    pub fn channels(&self) -> Result<Vec<(String, String, String)>, String> {
-        let mut out = std::collections::BTreeSet::new();
-        let stream =
-            mcap::MessageStream::new(&self.map).map_err(|e| format!("{}: {e}", self.path))?;
-        for m in stream {
-            let Ok(m) = m else { break };
-            let schema = m
-                .channel
-                .schema
-                .as_ref()
-                .map(|s| s.name.clone())
-                .unwrap_or_default();
-            out.insert((
-                m.channel.topic.clone(),
-                m.channel.message_encoding.clone(),
-                schema,
-            ));
-        }
-        Ok(out.into_iter().collect())
-    }
-
-    /// Calls `f` for each message on `topic`, in file order; stops early when
-    /// `f` returns false. A damaged tail ends the stream with an error after
-    /// the last complete message.
+    /// Calls `f` for each message on `topic`, in file order; stops early
+    /// when `f` returns false. A truncated file plays every frame of its
+    /// complete chunks and says where it was cut; damage is an error
+    /// naming the offset (after the frames of the chunks before it).
     pub fn for_each_frame(
         &self,
         topic: &str,
         mut f: impl FnMut(RecordedFrame) -> bool,
-    ) -> Result<usize, String> {
-        let stream =
-            mcap::MessageStream::new(&self.map).map_err(|e| format!("{}: {e}", self.path))?;
-        let mut n = 0;
-        for m in stream {
-            let m = m.map_err(|e| {
-                format!("{}: recording ends early after {n} frames: {e}", self.path)
-            })?;
-            if m.channel.topic != topic {
-                continue;
-            }
-            n += 1;
-            let schema = m
-                .channel
-                .schema
-                .as_ref()
-                .map(|s| s.name.as_str())
-                .unwrap_or("");
-            let image = decode(&m.channel.message_encoding, schema, &m.data);
-            if !f(RecordedFrame {
-                log_time_ns: m.log_time,
-                image,
-            }) {
-                break;
-            }
-        }
-        Ok(n)
+    ) -> Result<Played, String> {
+        let mut frames = 0;
+        let end = self
+            .file
+            .read(|m| {
+                if m.channel.topic != topic {
+                    return ControlFlow::Continue(());
+                }
+                frames += 1;
+                let schema = m
+                    .channel
+                    .schema
+                    .as_ref()
+                    .map(|s| s.name.as_str())
+                    .unwrap_or("");
+                let image = decode(&m.channel.message_encoding, schema, m.data);
+                if f(RecordedFrame {
+                    log_time_ns: m.log_time,
+                    image,
+                }) {
+                    ControlFlow::Continue(())
+                } else {
+                    ControlFlow::Break(())
+                }
+            })
+            .map_err(|e| e.to_string())?;
+        Ok(Played {
+            frames,
+            truncated: match end {
+                ReadEnd::Truncated(t) => Some(t),
+                ReadEnd::Complete | ReadEnd::Stopped => None,
+            },
+        })
     }
 }
 

@@ -8,6 +8,14 @@
 //! farsight replay run.mcap --lockstep --driving camera/front/image --answer cmd/velocity
 //! farsight diff golden.mcap run.mcap --topics 'nav/**' --topics cmd/velocity
 //! ```
+//!
+//! Every input is verified (`farsight_recording::mcap_file`). A file that is
+//! not an MCAP file or is damaged (a bad chunk CRC) exits 1 naming the file
+//! and the byte offset, before anything is replayed. A truncated file (a
+//! recorder killed mid-write) is read up to its last complete chunk: `--info`
+//! prints what is there, `replay` plays it, and both then exit 1 naming the
+//! offset where the data ends (`replay --allow-truncated` exits 0); `diff`
+//! refuses it.
 
 use anyhow::{bail, Context, Result};
 use farsight_interfaces::transport::ipc::Bus;
@@ -56,6 +64,9 @@ pub fn run_record(a: RecordArgs) -> Result<()> {
     if let Some(file) = a.info {
         let info = Recording::open(&file)?.info()?;
         print!("{info}");
+        if let Some(t) = info.truncated {
+            bail!("{t}");
+        }
         return Ok(());
     }
     let writer = RecordingWriter::create_with(&a.out, a.foxglove, !a.no_compression)?;
@@ -120,6 +131,11 @@ pub struct ReplayArgs {
     /// Lock-step: how long to wait for an answer before going on.
     #[arg(long, default_value_t = 2.0)]
     pub timeout_s: f64,
+    /// A truncated recording (a recorder killed mid-write) replays up to
+    /// its last complete chunk and exits 1 naming where it was cut; with
+    /// this it exits 0 (the cut is still reported).
+    #[arg(long)]
+    pub allow_truncated: bool,
 }
 
 pub fn run_replay(a: ReplayArgs) -> Result<()> {
@@ -177,7 +193,12 @@ pub fn run_replay(a: ReplayArgs) -> Result<()> {
             report.unanswered.len()
         );
     }
-    Ok(())
+    match report.truncated {
+        Some(t) if !a.allow_truncated => {
+            bail!("{t}; replayed those (--allow-truncated to accept a cut recording)")
+        }
+        _ => Ok(()),
+    }
 }
 
 #[derive(Debug, clap::Args)]

@@ -238,13 +238,15 @@ pub fn compare_decoded(a: &Decoded, b: &Decoded, tol: Tolerance) -> Vec<(String,
     out
 }
 
-/// Per topic, the first message of each sequence number.
+/// Per topic, the first message of each sequence number. A truncated
+/// recording is an error: a diff against part of a run would report the
+/// cut as missing frames.
 fn by_seq(
     rec: &Recording,
     patterns: &[String],
 ) -> Result<BTreeMap<String, BTreeMap<u64, Vec<u8>>>, RecordingError> {
     let mut out: BTreeMap<String, BTreeMap<u64, Vec<u8>>> = BTreeMap::new();
-    rec.for_each(|m| {
+    let cut = rec.for_each(|m| {
         if &*m.encoding == MESSAGE_ENCODING && crate::pattern::matches_any(patterns, &m.topic) {
             let d = decode(&m.topic, &m.data)?;
             let seq = d
@@ -263,11 +265,15 @@ fn by_seq(
         }
         Ok(())
     })?;
-    Ok(out)
+    match cut {
+        Some(t) => Err(RecordingError::Truncated(t)),
+        None => Ok(out),
+    }
 }
 
 /// Every difference between `golden` and `run` on the topics matching
-/// `patterns`: missing or extra frames, and differing fields.
+/// `patterns`: missing or extra frames, and differing fields. Either file
+/// damaged or truncated is an error naming it and the offset.
 pub fn compare(
     golden: &Recording,
     run: &Recording,

@@ -28,9 +28,15 @@
 //! Writing is incremental: every message is flushed to the file as its own
 //! chunk, so a recorder killed mid-run leaves a file that reads (and
 //! replays) up to its last complete message.
+//!
+//! Reading is verified ([`mcap_file`]): a file that is not an MCAP file, or
+//! is damaged (a bad chunk CRC), is an error naming the file and the byte
+//! offset; a truncated one reads up to its last complete chunk and says
+//! where it was cut.
 
 pub mod diff;
 pub mod foxglove;
+pub mod mcap_file;
 pub mod pattern;
 pub mod read;
 pub mod record;
@@ -43,15 +49,14 @@ pub const MESSAGE_ENCODING: &str = farsight_interfaces::transport::wire::MCAP_ME
 /// Errors of reading and writing recordings.
 #[derive(Debug, thiserror::Error)]
 pub enum RecordingError {
-    #[error("{path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
-    #[error("{path}: {source}")]
+    // The cause is in the text, not a `source` (which `{:#}` would print
+    // a second time).
+    #[error("{path}: {error}")]
+    Io { path: String, error: std::io::Error },
+    #[error("{path}: {error}")]
     Mcap {
         path: String,
-        source: mcap::McapError,
+        error: mcap::McapError,
     },
     #[error("{0}")]
     Transport(#[from] farsight_interfaces::transport::TransportError),
@@ -59,4 +64,10 @@ pub enum RecordingError {
     Wire(#[from] farsight_interfaces::transport::wire::WireError),
     #[error("topic {topic:?}: {why}")]
     Topic { topic: String, why: String },
+    /// Not an MCAP file, or a damaged one: names the file and the offset.
+    #[error(transparent)]
+    Damaged(#[from] mcap_file::McapDamage),
+    /// A truncated file where a whole one is needed (a diff).
+    #[error("{0}")]
+    Truncated(mcap_file::Truncation),
 }

@@ -1,9 +1,14 @@
 //! Reading recordings: messages in file order, and a summary of what a file
-//! holds. A file whose writer was killed ends mid-record; reading stops at
-//! the last complete message and says where the file was cut.
+//! holds. Reading is verified ([`crate::mcap_file`]): a file that is not an
+//! MCAP file or is damaged is an error naming the file and the offset. A
+//! file whose writer was killed ends mid-record; reading stops after the
+//! last complete chunk and says where the file was cut ([`Truncation`]).
 
+pub use crate::mcap_file::Truncation;
+use crate::mcap_file::{McapFile, ReadEnd};
 use crate::{RecordingError, MESSAGE_ENCODING};
 use std::collections::BTreeMap;
+use std::ops::ControlFlow;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -21,10 +26,9 @@ pub struct RecordedMessage<'a> {
     pub data: std::borrow::Cow<'a, [u8]>,
 }
 
-/// A memory-mapped recording.
+/// A memory-mapped recording whose MCAP magic has been checked.
 pub struct Recording {
-    map: memmap2::Mmap,
-    path: String,
+    file: McapFile,
 }
 
 /// Per topic: how many messages, over what time, how many bytes.
@@ -62,7 +66,7 @@ pub struct Info {
     pub topics: Vec<TopicInfo>,
     pub duration_s: f64,
     /// Where and why reading stopped early (a recorder killed mid-write).
-    pub truncated: Option<String>,
+    pub truncated: Option<Truncation>,
 }
 
 impl std::fmt::Display for Info {
@@ -98,54 +102,38 @@ impl std::fmt::Display for Info {
                 }
             )?;
         }
-        if let Some(why) = &self.truncated {
-            writeln!(f, "truncated: {why}")?;
+        if let Some(t) = &self.truncated {
+            writeln!(f, "{t}")?;
         }
         Ok(())
     }
 }
 
 impl Recording {
+    /// Opens `path`: an empty file, or one that does not start with the
+    /// MCAP magic, is refused here.
     pub fn open(path: &Path) -> Result<Self, RecordingError> {
-        let p = path.display().to_string();
-        let file = std::fs::File::open(path).map_err(|source| RecordingError::Io {
-            path: p.clone(),
-            source,
-        })?;
-        // SAFETY: the file is only read; one still being written shows up as
-        // a truncated stream, which `for_each` reports.
-        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|source| RecordingError::Io {
-            path: p.clone(),
-            source,
-        })?;
-        Ok(Self { map, path: p })
+        Ok(Self {
+            file: McapFile::open(path)?,
+        })
     }
 
     pub fn path(&self) -> &str {
-        &self.path
+        self.file.path()
     }
 
     /// Calls `f` on every message in file order (Foxglove's channels too:
-    /// check `encoding`). Returns why reading stopped early, if it did.
+    /// check `encoding`). A damaged file is an error (after the messages of
+    /// the chunks before the damage: check it before acting on any, as
+    /// replay does); a truncated one returns where it was cut, after every
+    /// message of its complete chunks.
     pub fn for_each(
         &self,
         mut f: impl FnMut(RecordedMessage<'_>) -> Result<(), RecordingError>,
-    ) -> Result<Option<String>, RecordingError> {
-        let stream = match mcap::MessageStream::new(&self.map) {
-            Ok(s) => s,
-            Err(e) => {
-                return Err(RecordingError::Mcap {
-                    path: self.path.clone(),
-                    source: e,
-                })
-            }
-        };
+    ) -> Result<Option<Truncation>, RecordingError> {
         let mut names: BTreeMap<u16, (Arc<str>, Arc<str>)> = BTreeMap::new();
-        for (n, m) in stream.enumerate() {
-            let m = match m {
-                Ok(m) => m,
-                Err(e) => return Ok(Some(format!("after {n} messages: {e}"))),
-            };
+        let mut failed = None;
+        let end = self.file.read(|m| {
             let (topic, encoding) = names
                 .entry(m.channel.id)
                 .or_insert_with(|| {
@@ -155,22 +143,39 @@ impl Recording {
                     )
                 })
                 .clone();
-            f(RecordedMessage {
+            match f(RecordedMessage {
                 topic,
                 encoding,
                 log_time_ns: m.log_time,
                 capture_time_ns: m.publish_time,
                 sequence: m.sequence,
-                data: m.data,
-            })?;
+                data: std::borrow::Cow::Borrowed(m.data),
+            }) {
+                Ok(()) => ControlFlow::Continue(()),
+                Err(e) => {
+                    failed = Some(e);
+                    ControlFlow::Break(())
+                }
+            }
+        })?;
+        if let Some(e) = failed {
+            return Err(e);
         }
-        Ok(None)
+        Ok(match end {
+            ReadEnd::Truncated(t) => Some(t),
+            ReadEnd::Complete | ReadEnd::Stopped => None,
+        })
+    }
+
+    /// Reads and checks the whole file; where it was cut, if it was.
+    pub fn verify(&self) -> Result<Option<Truncation>, RecordingError> {
+        self.for_each(|_| Ok(()))
     }
 
     /// Every farsight message, in file order, copied out.
     pub fn messages(
         &self,
-    ) -> Result<(Vec<RecordedMessage<'static>>, Option<String>), RecordingError> {
+    ) -> Result<(Vec<RecordedMessage<'static>>, Option<Truncation>), RecordingError> {
         let mut out = Vec::new();
         let cut = self.for_each(|m| {
             if &*m.encoding == MESSAGE_ENCODING {
@@ -211,7 +216,7 @@ impl Recording {
             Ok(())
         })?;
         Ok(Info {
-            path: self.path.clone(),
+            path: self.path().to_string(),
             topics: topics.into_values().collect(),
             duration_s: if last >= first {
                 (last - first) as f64 * 1e-9

@@ -18,7 +18,7 @@
 //! recorder happened to write them in.
 
 use crate::pattern::matches_any;
-use crate::read::{RecordedMessage, Recording};
+use crate::read::{RecordedMessage, Recording, Truncation};
 use crate::write::RecordingWriter;
 use crate::{RecordingError, MESSAGE_ENCODING};
 use farsight_interfaces::clock::{Clock, WallClock};
@@ -88,8 +88,9 @@ pub struct ReplayReport {
     /// Frames of the driving topic published.
     pub driving_frames: u64,
     pub wall_s: f64,
-    /// Where reading stopped early (a truncated recording).
-    pub truncated: Option<String>,
+    /// Where reading stopped early (a truncated recording: everything
+    /// before the cut was replayed).
+    pub truncated: Option<Truncation>,
 }
 
 impl std::fmt::Display for ReplayReport {
@@ -121,7 +122,7 @@ impl std::fmt::Display for ReplayReport {
             writeln!(f, "  answers on {t:<24} {n:>8}")?;
         }
         if let Some(t) = &self.truncated {
-            writeln!(f, "recording truncated: {t}")?;
+            writeln!(f, "{t}")?;
         }
         Ok(())
     }
@@ -196,10 +197,12 @@ pub fn replay(
         |topic: &str| opts.driving_topic.as_deref() == Some(published_name(opts, topic).as_str());
     // A first pass over the file keeps nothing but sizes and the start of
     // the clock: a recording of rendered frames can decompress to a hundred
-    // times its size, so the messages are streamed, never all held.
+    // times its size, so the messages are streamed, never all held. It also
+    // checks the whole file: a damaged one is refused before anything goes
+    // out.
     let mut largest: BTreeMap<String, usize> = BTreeMap::new();
     let (mut first_driving, mut first_stamped) = (None, None);
-    rec.for_each(|m| {
+    let cut = rec.for_each(|m| {
         if selected(&m) {
             let e = largest.entry(m.topic.to_string()).or_default();
             *e = (*e).max(m.data.len());
@@ -212,6 +215,9 @@ pub fn replay(
         }
         Ok(())
     })?;
+    if let Some(t) = cut {
+        tracing::warn!("{t}; replaying those");
+    }
     // The clock starts at the driving topic's first frame (else the first
     // stamped message): a goal stamped 0 must not count as the start of a
     // recording made on the wall clock.

@@ -50,9 +50,9 @@ impl RecordingWriter {
     /// [`Self::create`], with compression on or off.
     pub fn create_with(path: &Path, foxglove: bool, zstd: bool) -> Result<Self, RecordingError> {
         let p = path.display().to_string();
-        let file = std::fs::File::create(path).map_err(|source| RecordingError::Io {
+        let file = std::fs::File::create(path).map_err(|error| RecordingError::Io {
             path: p.clone(),
-            source,
+            error,
         })?;
         let out = mcap::WriteOptions::new()
             .profile("farsight")
@@ -60,9 +60,9 @@ impl RecordingWriter {
             .compression(zstd.then_some(mcap::Compression::Zstd))
             .compression_level(1)
             .create(BufWriter::new(file))
-            .map_err(|source| RecordingError::Mcap {
+            .map_err(|error| RecordingError::Mcap {
                 path: p.clone(),
-                source,
+                error,
             })?;
         Ok(Self {
             out,
@@ -75,9 +75,9 @@ impl RecordingWriter {
     }
 
     fn mcap_err(&self) -> impl FnOnce(mcap::McapError) -> RecordingError + '_ {
-        move |source| RecordingError::Mcap {
+        move |error| RecordingError::Mcap {
             path: self.path.clone(),
-            source,
+            error,
         }
     }
 
@@ -91,7 +91,7 @@ impl RecordingWriter {
         })?;
         let (name, text) = schema_of(kind);
         let path = self.path.clone();
-        let err = |source| RecordingError::Mcap { path, source };
+        let err = |error| RecordingError::Mcap { path, error };
         let schema = self
             .out
             .add_schema(&name, MESSAGE_ENCODING, text.as_bytes())
@@ -110,7 +110,7 @@ impl RecordingWriter {
             return Ok(*id);
         }
         let path = self.path.clone();
-        let err = |source| RecordingError::Mcap { path, source };
+        let err = |error| RecordingError::Mcap { path, error };
         let s = self
             .out
             .add_schema(
