@@ -150,6 +150,106 @@ fn two_cameras_stream_and_broken_files_are_skipped() {
     assert!((b.abs() - std::f64::consts::PI).abs() < 1e-9, "{b}");
 }
 
+/// The committed corpus (`tests/fixtures/bad-images`: 200 mutated PNGs and
+/// JPEGs, the 100000x100000 bomb, a valid 16000x16000 header, empty and text
+/// files), then one good frame, through camera-ingest in a memory cgroup as
+/// tight as its unit's `MemoryMax`: nothing broken is published, every file
+/// is dropped, counted and named, the good frame still arrives, the limit is
+/// never hit and the stage ends normally (no abort).
+#[test]
+fn the_bad_image_corpus_publishes_nothing_within_the_units_memory_limit() {
+    let ns = Namespace::new("ingestcorpus");
+    let dir = ns.root.join("corpus");
+    std::fs::create_dir_all(&dir).unwrap();
+    let fixtures = repo_root().join("tests/fixtures/bad-images");
+    let mut bad = Vec::new();
+    for entry in std::fs::read_dir(fixtures.join("mutated")).unwrap() {
+        bad.push(entry.unwrap().path());
+    }
+    assert_eq!(bad.len(), 200, "the mutated corpus");
+    for name in [
+        "bomb-100000x100000.png",
+        "large-16000x16000.png",
+        "empty.png",
+        "text.jpg",
+    ] {
+        bad.push(fixtures.join(name));
+    }
+    for path in &bad {
+        std::fs::copy(path, dir.join(path.file_name().unwrap())).unwrap();
+    }
+    // Sorted after every bad name: the stream must still work at the end.
+    std::fs::copy(fixtures.join("good-32x24.png"), dir.join("zzz-good.png")).unwrap();
+
+    let cfg = ns.write(
+        "camera-ingest.toml",
+        &format!(
+            "[[cameras]]\nfolder = \"corpus\"\nrate_hz = 200.0\nloops = 1\n{}",
+            model("front", 32, 24, 0.0)
+        ),
+    );
+    let bus = ns.bus("ingest-corpus");
+    let frames = bus
+        .slice_subscriber(&topics::camera_image("front"))
+        .unwrap();
+    let health = bus.subscriber(&topics::health("camera-ingest")).unwrap();
+
+    let limit = farsight_tests::unit_memory_max_bytes("camera-ingest");
+    let cgroup = farsight_tests::MemoryCgroup::new("ingest-corpus", limit);
+    let mut cmd = std::process::Command::new(farsight_tests::bin("farsight-camera-ingest"));
+    cmd.args(["--config", cfg.to_str().unwrap()])
+        .envs(ns.env())
+        .env("RUST_LOG", "info");
+    let mut stage = farsight_tests::Proc::spawn("farsight-camera-ingest", cgroup.wrap(&cmd));
+
+    let (mut published, mut last) = (Vec::new(), None);
+    let mut exit = None;
+    let end = Instant::now() + Duration::from_secs(120);
+    while Instant::now() < end && (exit.is_none() || last.is_none()) {
+        if let Some(f) = frames.latest().unwrap() {
+            published.push((f.header().width, f.header().height, f.data().to_vec()));
+        }
+        if let Some(h) = health.latest().unwrap() {
+            if h.state.name() == Some("stopping") {
+                last = Some(h);
+            }
+        }
+        if exit.is_none() {
+            exit = stage.wait_exit(Duration::from_millis(5));
+        }
+    }
+    let errors = stage.stderr_so_far();
+    assert_eq!(exit, Some(0), "no abort, a normal end:\n{errors}");
+    let good =
+        farsight_imaging::decode_png(&std::fs::read(fixtures.join("good-32x24.png")).unwrap())
+            .unwrap()
+            .1;
+    assert_eq!(published.len(), 1, "only the good frame is published");
+    assert_eq!(published[0], (32, 24, good));
+    let h = last.expect("the final health report");
+    assert_eq!((h.messages_out, h.dropped), (1, bad.len() as u64), "{h:?}");
+    for path in &bad {
+        let name = path.file_name().unwrap().to_str().unwrap();
+        assert!(
+            errors.contains(name),
+            "{name} is not named in the log:\n{errors}"
+        );
+    }
+    let peak = cgroup.peak_bytes();
+    println!(
+        "{} bad files: 0 published, {} dropped; peak memory {:.1} MiB of the unit's {} MiB",
+        bad.len(),
+        h.dropped,
+        peak as f64 / 1048576.0,
+        limit >> 20
+    );
+    assert_eq!(
+        cgroup.limit_hits(),
+        0,
+        "the memory limit was hit (peak {peak} bytes)"
+    );
+}
+
 #[test]
 fn a_missing_v4l2_camera_stops_the_stage_with_a_clear_error() {
     let ns = Namespace::new("ingestv4l2");

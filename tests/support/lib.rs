@@ -478,3 +478,113 @@ pub fn pose_now() -> farsight_interfaces::msg::Pose {
         ..Default::default()
     }
 }
+
+/// A memory cgroup for one test process: the limit a unit's `MemoryMax`
+/// sets, with the peak use and whether the limit was hit. cgroup v1
+/// (`/sys/fs/cgroup/memory`) or v2 (`/sys/fs/cgroup` with the memory
+/// controller). systemd sets the same kernel limit for a unit; this stands
+/// in for systemd, which does not run here.
+pub struct MemoryCgroup {
+    dir: PathBuf,
+    v1: bool,
+}
+
+impl MemoryCgroup {
+    /// A new cgroup limited to `limit_bytes`; panics naming what is missing
+    /// if the machine has no writable memory cgroup (a test must not pass
+    /// without its limit).
+    pub fn new(name: &str, limit_bytes: u64) -> Self {
+        let leaf = format!("farsight-test-{name}-{}", std::process::id());
+        let v1_root = PathBuf::from("/sys/fs/cgroup/memory");
+        let (dir, v1) = if v1_root.join("memory.limit_in_bytes").exists() {
+            (v1_root.join(leaf), true)
+        } else {
+            (PathBuf::from("/sys/fs/cgroup").join(leaf), false)
+        };
+        std::fs::create_dir(&dir).unwrap_or_else(|e| {
+            panic!(
+                "memory cgroup {}: {e} (needs root and a memory cgroup)",
+                dir.display()
+            )
+        });
+        let limit = if v1 {
+            "memory.limit_in_bytes"
+        } else {
+            "memory.max"
+        };
+        std::fs::write(dir.join(limit), limit_bytes.to_string())
+            .unwrap_or_else(|e| panic!("{}: {e}", dir.join(limit).display()));
+        Self { dir, v1 }
+    }
+
+    /// `cmd` wrapped so that it enters this cgroup before it execs: every
+    /// allocation of the process is counted.
+    pub fn wrap(&self, cmd: &Command) -> Command {
+        let mut sh = Command::new("sh");
+        sh.arg("-c")
+            .arg(r#"echo $$ > "$FARSIGHT_CGROUP_PROCS" && exec "$@""#)
+            .arg("sh")
+            .arg(cmd.get_program())
+            .args(cmd.get_args())
+            .env("FARSIGHT_CGROUP_PROCS", self.dir.join("cgroup.procs"));
+        for (k, v) in cmd.get_envs() {
+            match v {
+                Some(v) => sh.env(k, v),
+                None => sh.env_remove(k),
+            };
+        }
+        sh
+    }
+
+    fn read(&self, file: &str) -> String {
+        std::fs::read_to_string(self.dir.join(file))
+            .unwrap_or_else(|e| panic!("{}: {e}", self.dir.join(file).display()))
+    }
+
+    /// The most memory the cgroup's processes held at once, bytes.
+    pub fn peak_bytes(&self) -> u64 {
+        let f = if self.v1 {
+            "memory.max_usage_in_bytes"
+        } else {
+            "memory.peak"
+        };
+        self.read(f).trim().parse().expect("a byte count")
+    }
+
+    /// How often an allocation hit the limit.
+    pub fn limit_hits(&self) -> u64 {
+        if self.v1 {
+            self.read("memory.failcnt").trim().parse().expect("a count")
+        } else {
+            self.read("memory.events")
+                .lines()
+                .find_map(|l| l.strip_prefix("max "))
+                .and_then(|n| n.trim().parse().ok())
+                .unwrap_or(0)
+        }
+    }
+}
+
+impl Drop for MemoryCgroup {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir(&self.dir);
+    }
+}
+
+/// A unit's `MemoryMax=` in bytes (`512M`, `1G`), read from
+/// `deploy/systemd/farsight-<stage>.service`.
+pub fn unit_memory_max_bytes(stage: &str) -> u64 {
+    let path = repo_root().join(format!("deploy/systemd/farsight-{stage}.service"));
+    let unit = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let value = unit
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("MemoryMax="))
+        .unwrap_or_else(|| panic!("{}: no MemoryMax=", path.display()));
+    let (digits, unit_mult) = match value.trim().chars().last() {
+        Some('K') => (&value[..value.len() - 1], 1u64 << 10),
+        Some('M') => (&value[..value.len() - 1], 1 << 20),
+        Some('G') => (&value[..value.len() - 1], 1 << 30),
+        _ => (value, 1),
+    };
+    digits.trim().parse::<u64>().expect("MemoryMax digits") * unit_mult
+}
