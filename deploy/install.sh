@@ -135,6 +135,7 @@ say "change the passwords in $prefix/etc/farsight/zenoh/users.txt and robot.json
 for u in "$repo"/deploy/systemd/*; do act install -m 0644 "$u" "$prefix/etc/systemd/system/"; done
 act install -m 0644 "$repo/deploy/tmpfiles.d/farsight.conf" "$prefix/usr/lib/tmpfiles.d/farsight.conf"
 act install -m 0644 "$repo/README.md" "$prefix/usr/local/share/doc/farsight/README.md"
+act install -m 0644 "$repo/NOTICE" "$prefix/usr/local/share/doc/farsight/NOTICE"
 
 if [ -n "$prefix" ]; then
   say "staged under $prefix (no user created, systemd not touched)"

@@ -172,6 +172,10 @@ fn a_dry_run_changes_nothing_and_a_reinstall_keeps_the_users_configs() {
         .join("etc/farsight/velocity-servoing.toml.new")
         .exists());
     assert!(text.contains("kept your"), "{text}");
+    // The IJG licence of jpeg-encoder asks for its notice beside the binaries.
+    let notice =
+        std::fs::read_to_string(prefix.join("usr/local/share/doc/farsight/NOTICE")).unwrap();
+    assert!(notice.contains("Independent JPEG Group"), "{notice}");
     let model =
         std::fs::read_to_string(prefix.join("etc/farsight/models/twinlitenet.toml")).unwrap();
     assert!(
