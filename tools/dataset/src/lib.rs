@@ -309,6 +309,9 @@ pub fn build(
     let mut examples_left = opts.examples;
     for (ri, path) in recordings.iter().enumerate() {
         let index = RunIndex::read(path, &opts.camera)?;
+        if let Some(cut) = &index.truncated {
+            progress(&format!("warning: {cut}; using what comes before it"));
+        }
         progress(&format!(
             "{}: {} frames, {} poses, {} map cells observed",
             path.display(),

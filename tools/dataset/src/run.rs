@@ -119,6 +119,9 @@ pub struct RunIndex {
     pub seen: SeenMap,
     /// Camera frames in the file.
     pub frames: usize,
+    /// Where the file was cut (a recorder killed mid-write): everything
+    /// before it is used.
+    pub truncated: Option<farsight_recording::mcap_file::Truncation>,
 }
 
 impl RunIndex {
@@ -141,7 +144,7 @@ impl RunIndex {
             topic: topic.to_string(),
             why,
         };
-        rec.for_each(|m| {
+        let truncated = rec.for_each(|m| {
             let t = &*m.topic;
             if t == info_topic && info.is_none() {
                 info = Some(wire::decode_message(&m.data).map_err(|e| bad(t, e.to_string()))?);
@@ -188,6 +191,7 @@ impl RunIndex {
             poses,
             seen,
             frames,
+            truncated,
         })
     }
 
@@ -306,6 +310,28 @@ mod tests {
         assert!(
             m.add_costmap(&h, &[cell(0.5); 5]).is_err(),
             "wrong cell count"
+        );
+    }
+
+    #[test]
+    fn a_recording_cut_mid_write_is_used_up_to_the_cut_and_says_where() {
+        let whole = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../tests/fixtures/heldout/recording.mcap");
+        let full = RunIndex::read(&whole, "front").unwrap();
+        assert!(full.truncated.is_none());
+        let bytes = std::fs::read(&whole).unwrap();
+        let cut = std::env::temp_dir().join(format!("farsight-cut-{}.mcap", std::process::id()));
+        std::fs::write(&cut, &bytes[..bytes.len() * 3 / 5]).unwrap();
+        let part = RunIndex::read(&cut, "front");
+        std::fs::remove_file(&cut).unwrap();
+        let part = part.unwrap();
+        let t = part.truncated.expect("the cut is reported");
+        assert!(t.offset <= (bytes.len() * 3 / 5) as u64, "{t}");
+        assert!(
+            part.frames > 0 && part.frames < full.frames,
+            "{} of {}",
+            part.frames,
+            full.frames
         );
     }
 
