@@ -118,7 +118,6 @@ fn every_unit_passes_systemd_analyze_verify() {
 #[test]
 fn the_units_keep_stages_independent_and_iceoryx2_visible_to_all() {
     let dir = repo_root().join("deploy/systemd");
-    let target = std::fs::read_to_string(dir.join("farsight.target")).unwrap();
     for s in STAGES {
         let unit = std::fs::read_to_string(dir.join(format!("farsight-{s}.service"))).unwrap();
         let has = |line: &str| unit.lines().any(|l| l.trim() == line);
@@ -145,7 +144,6 @@ fn the_units_keep_stages_independent_and_iceoryx2_visible_to_all() {
         }) {
             assert!(!l.contains("farsight-"), "farsight-{s}.service: {l}");
         }
-        assert!(target.contains(&format!("farsight-{s}.service")), "{s}");
     }
     let tmpfiles =
         std::fs::read_to_string(repo_root().join("deploy/tmpfiles.d/farsight.conf")).unwrap();

@@ -30,13 +30,14 @@ fn main() {
 
 fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
+    let instance = args.instance.as_str();
     farsight_stage::init_tracing(args.log_format);
     let config: BinProjectionConfig = load_config(args.config.as_deref())?;
     if config.method == "fitam" {
-        return run_fitam(&config);
+        return run_fitam(&config, instance);
     }
     let geometry = BinGeometry::from_width_deg(config.bins.bin_width_deg);
-    let bus = Bus::open(STAGE)?;
+    let bus = Bus::open(instance)?;
     let heatmaps = config
         .cameras
         .iter()
@@ -48,8 +49,8 @@ fn run() -> Result<()> {
         .map(|c| bus.subscriber(&topics::camera_info(c)))
         .collect::<Result<Vec<_>, _>>()?;
     let out = bus.publisher(&topics::angular_bins())?;
-    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
-    farsight_stage::announce_ready(STAGE);
+    let mut health = Health::new(&bus, instance, config.health_rate_hz)?;
+    farsight_stage::announce_ready(instance);
 
     let n = config.cameras.len();
     let mut cameras: Vec<Option<Camera>> = vec![None; n];
@@ -154,9 +155,9 @@ fn run() -> Result<()> {
 
 /// The FITAM loop: each camera's latest ensemble output becomes polar cells
 /// in the heading bins its slices look into; cameras merge by certainty.
-fn run_fitam(config: &BinProjectionConfig) -> Result<()> {
+fn run_fitam(config: &BinProjectionConfig, instance: &str) -> Result<()> {
     let cfg = &config.fitam;
-    let bus = Bus::open(STAGE)?;
+    let bus = Bus::open(instance)?;
     let tensors = config
         .cameras
         .iter()
@@ -169,8 +170,8 @@ fn run_fitam(config: &BinProjectionConfig) -> Result<()> {
         .collect::<Result<Vec<_>, _>>()?;
     let radial = cfg.range_edges_m.len() - 1;
     let out = bus.slice_publisher(&topics::polar_bins(), cfg.heading_bins * radial)?;
-    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
-    farsight_stage::announce_ready(STAGE);
+    let mut health = Health::new(&bus, instance, config.health_rate_hz)?;
+    farsight_stage::announce_ready(instance);
 
     let n = config.cameras.len();
     let mut cameras: Vec<Option<Camera>> = vec![None; n];

@@ -21,9 +21,10 @@
 
 use crate::fitam::FitamBinsConfig;
 use crate::LrnBinsConfig;
+use farsight_interfaces::topics;
 use farsight_stage::inputs::INPUT_DEADLINE_S;
 use farsight_stage::ranges::RATE_HZ;
-use farsight_stage::{ConfigError, Ranges, Validate};
+use farsight_stage::{ConfigError, Io, Need, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -77,5 +78,29 @@ impl Validate for BinProjectionConfig {
         }
         self.bins.check_rules()?;
         self.fitam.check_rules()
+    }
+}
+
+impl farsight_stage::DeclaresTopics for BinProjectionConfig {
+    fn topics(&self, instance: &str, _: &std::path::Path) -> Result<Io, String> {
+        let mut io = Io::for_instance(instance);
+        for c in &self.cameras {
+            // The cameras are one group: one fresh camera keeps the bins
+            // going. Each is still a required edge: a camera nothing feeds
+            // is a wiring mistake.
+            let input = if self.method == "fitam" {
+                topics::far_field_logits(c).name().to_string()
+            } else {
+                topics::affordance_heatmap(c).name().to_string()
+            };
+            io.read(input, Need::Required)
+                .read(topics::camera_info(c).name(), Need::Required);
+        }
+        io.write(if self.method == "fitam" {
+            topics::polar_bins().name().to_string()
+        } else {
+            topics::angular_bins().name().to_string()
+        });
+        Ok(io)
     }
 }

@@ -42,7 +42,7 @@ use farsight_interfaces::transport::ipc::{self, Bus};
 use farsight_interfaces::transport::net::{NetBus, RawPublisher, RawSubscriber};
 use farsight_interfaces::transport::{wire, TransportError};
 use farsight_stage::ranges::RATE_HZ;
-use farsight_stage::{ConfigError, Range, Ranges, Validate};
+use farsight_stage::{ConfigError, Io, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 use std::cell::RefCell;
 
@@ -163,6 +163,20 @@ impl ExportConfig {
 #[serde(deny_unknown_fields)]
 pub struct ImportConfig {
     pub topic: String,
+}
+
+impl farsight_stage::DeclaresTopics for BridgeConfig {
+    fn topics(&self, instance: &str, _: &std::path::Path) -> Result<Io, String> {
+        let mut io = Io::for_instance(instance);
+        // Exports forward what exists; imports are written from the network.
+        for e in &self.export {
+            io.read(e.topic.clone(), farsight_stage::Need::Optional);
+        }
+        for i in &self.import {
+            io.write(i.topic.clone());
+        }
+        Ok(io)
+    }
 }
 
 impl Validate for BridgeConfig {

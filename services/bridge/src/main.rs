@@ -27,6 +27,7 @@ fn run() -> Result<()> {
     let print_router = argv.iter().any(|a| a == "--print-router-config");
     argv.retain(|a| a != "--print-router-config");
     let args = StageArgs::parse_from(STAGE, argv)?;
+    let instance = args.instance.as_str();
     if print_router {
         let config: BridgeConfig = load_config(args.config.as_deref())?;
         print!("{}", farsight_bridge::acl::router_config(&config));
@@ -38,13 +39,13 @@ fn run() -> Result<()> {
     if let Some(why) = farsight_bridge::acl::mismatch(&zenoh_config, &config) {
         tracing::warn!(file = %config.zenoh.config_file, "zenoh config: {why}");
     }
-    let bus = Bus::open(STAGE)?;
+    let bus = Bus::open(instance)?;
     let net = NetBus::open(zenoh_config, &config.robot).context("opening the zenoh session")?;
     // A laptop lists live stages with a liveliness query on farsight/<robot>/alive/**.
     let _alive = net
         .session()
         .liveliness()
-        .declare_token(net.key(&format!("alive/{STAGE}")))
+        .declare_token(net.key(&format!("alive/{instance}")))
         .wait()
         .map_err(|e| anyhow::anyhow!("declaring liveliness: {e}"))?;
     let exports = config
@@ -58,7 +59,7 @@ fn run() -> Result<()> {
         .iter()
         .map(|c| Import::open(&bus, &net, c))
         .collect::<Result<Vec<_>, _>>()?;
-    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
+    let mut health = Health::new(&bus, instance, config.health_rate_hz)?;
     health.set(HealthState::OK, "");
     let clock = WallClock;
     tracing::info!(
@@ -67,7 +68,7 @@ fn run() -> Result<()> {
         imports = ?imports.iter().map(Import::topic).collect::<Vec<_>>(),
         "bridge config"
     );
-    farsight_stage::announce_ready(STAGE);
+    farsight_stage::announce_ready(instance);
 
     let listeners: Vec<_> = exports.iter().map(Export::listener).collect();
     let tick = Duration::from_secs_f64(1.0 / config.import_poll_hz);

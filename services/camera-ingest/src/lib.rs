@@ -56,8 +56,9 @@ pub mod v4l2;
 
 use farsight_interfaces::camera::CameraConfig;
 use farsight_interfaces::msg::{ImageHeader, PixelEncoding};
+use farsight_interfaces::topics;
 use farsight_stage::ranges::RATE_HZ;
-use farsight_stage::{ConfigError, Range, Ranges, Validate};
+use farsight_stage::{ConfigError, Io, Need, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -144,6 +145,25 @@ impl Validate for CameraEntry {
                 &m.rpy_deg,
                 Range::between(-360.0, 360.0).unit("deg"),
             );
+    }
+}
+
+impl farsight_stage::DeclaresTopics for IngestConfig {
+    fn topics(&self, instance: &str, _: &Path) -> Result<Io, String> {
+        let mut io = Io::for_instance(instance);
+        for c in &self.cameras {
+            let name = &c.model.name;
+            io.write(topics::camera_image(name).name())
+                .write(topics::camera_info(name).name());
+            if !c.depth_folder.is_empty() {
+                io.write(topics::depth(name).name());
+            }
+            if !c.pace_by.is_empty() {
+                // Lock-step: without an answer it waits pace_timeout_s per frame.
+                io.read(c.pace_by.clone(), Need::Optional);
+            }
+        }
+        Ok(io)
     }
 }
 

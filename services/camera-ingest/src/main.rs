@@ -227,6 +227,7 @@ fn v4l2_source(i: usize, mut cam: V4l2Camera, tx: SyncSender<Event>, stop: Arc<A
 
 fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
+    let instance = args.instance.as_str();
     farsight_stage::init_tracing(args.log_format);
     let config: IngestConfig = load_config(args.config.as_deref())?;
     let base = args.config_dir();
@@ -238,7 +239,7 @@ fn run() -> Result<()> {
         .collect::<Result<_, _>>()?;
     let capture_times: Vec<_> = config.cameras.iter().map(|c| c.capture_time).collect();
 
-    let bus = Bus::open(STAGE)?;
+    let bus = Bus::open(instance)?;
     let mut publishers = Vec::new();
     let mut depth_publishers = Vec::new();
     for cam in &cameras {
@@ -256,7 +257,7 @@ fn run() -> Result<()> {
             Some(bus.slice_publisher(&topics::depth(&cam.name), w * h * 2)?)
         });
     }
-    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
+    let mut health = Health::new(&bus, instance, config.health_rate_hz)?;
 
     // Open every source before announcing readiness: a missing camera or an
     // empty folder is a start-up error, not a silent stream.
@@ -346,7 +347,7 @@ fn run() -> Result<()> {
         }
         None => health.set(HealthState::OK, ""),
     }
-    farsight_stage::announce_ready(STAGE);
+    farsight_stage::announce_ready(instance);
     let mut failed: Option<anyhow::Error> = None;
 
     let clock = WallClock;

@@ -52,7 +52,7 @@ use farsight_interfaces::base::CommandGate;
 use farsight_interfaces::msg::{CommandReason, EStop, VelocityCommand};
 use farsight_interfaces::topics;
 use farsight_stage::ranges::RATE_HZ;
-use farsight_stage::{ConfigError, Range, Ranges, Validate};
+use farsight_stage::{ConfigError, Io, Need, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 /// What autonomy does when the operator link is lost.
@@ -115,6 +115,24 @@ impl Default for MuxConfig {
                 },
             ],
         }
+    }
+}
+
+impl farsight_stage::DeclaresTopics for MuxConfig {
+    fn topics(&self, instance: &str, _: &std::path::Path) -> Result<Io, String> {
+        let mut io = Io::for_instance(instance);
+        for input in &self.inputs {
+            io.read(input.topic.clone(), Need::Optional);
+        }
+        // With a deadman, no e-stop heartbeat means no motion.
+        let estop = if self.deadman_timeout_s > 0.0 {
+            Need::Required
+        } else {
+            Need::Optional
+        };
+        io.read(topics::estop().name(), estop)
+            .write(topics::velocity_command().name());
+        Ok(io)
     }
 }
 

@@ -21,9 +21,10 @@ fn main() {
 
 fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
+    let instance = args.instance.as_str();
     farsight_stage::init_tracing(args.log_format);
     let config: MuxConfig = load_config(args.config.as_deref())?;
-    let bus = Bus::open(STAGE)?;
+    let bus = Bus::open(instance)?;
     let inputs = config
         .inputs
         .iter()
@@ -34,10 +35,10 @@ fn run() -> Result<()> {
         .collect::<Result<Vec<_>>>()?;
     let estops = bus.subscriber(&topics::estop())?;
     let out = bus.publisher(&topics::velocity_command())?;
-    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
+    let mut health = Health::new(&bus, instance, config.health_rate_hz)?;
     let period = Duration::from_secs_f64(1.0 / config.output_rate_hz);
     let mut mux = CommandMux::new(config);
-    farsight_stage::announce_ready(STAGE);
+    farsight_stage::announce_ready(instance);
 
     // Receipt times on a monotonic clock: TTLs are counted from receipt.
     let start = Instant::now();

@@ -36,9 +36,10 @@ fn main() {
 
 fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
+    let instance = args.instance.as_str();
     farsight_stage::init_tracing(args.log_format);
     let config: FusionStageConfig = load_config(args.config.as_deref())?;
-    let bus = Bus::open(STAGE)?;
+    let bus = Bus::open(instance)?;
     let poses = bus.subscriber(&topics::pose())?;
     let polar = bus.slice_subscriber(&topics::polar_bins())?;
     let locals = config
@@ -90,8 +91,8 @@ fn run() -> Result<()> {
             .map(|p| (layer, p))
     });
     let outputs = outputs.into_iter().collect::<Result<Vec<_>, _>>()?;
-    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
-    farsight_stage::announce_ready(STAGE);
+    let mut health = Health::new(&bus, instance, config.health_rate_hz)?;
+    farsight_stage::announce_ready(instance);
 
     let clock = WallClock;
     let mut map = FusionMap::new(

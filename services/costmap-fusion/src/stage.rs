@@ -38,9 +38,10 @@
 
 use crate::kalman::FarFieldConfig;
 use crate::near_field::NearFieldConfig;
+use farsight_interfaces::topics;
 use farsight_stage::inputs::INPUT_DEADLINE_S;
 use farsight_stage::ranges::RATE_HZ;
-use farsight_stage::{ConfigError, Range, Ranges, Validate};
+use farsight_stage::{ConfigError, Io, Need, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -113,9 +114,76 @@ impl Validate for FusionStageConfig {
     }
 }
 
+impl farsight_stage::DeclaresTopics for FusionStageConfig {
+    fn topics(&self, instance: &str, _: &std::path::Path) -> Result<Io, String> {
+        let mut io = Io::for_instance(instance);
+        io.read(topics::pose().name(), Need::Required);
+        let nf = &self.near_field;
+        let near_sources =
+            self.local_costmaps.len() + nf.depth_cameras.len() + nf.class_map_cameras.len();
+        if self.use_far_field {
+            // The far field alone drives the map only when nothing near does.
+            let need = if near_sources == 0 {
+                Need::Required
+            } else {
+                Need::Optional
+            };
+            io.read(topics::polar_bins().name(), need);
+        }
+        for c in &self.local_costmaps {
+            io.read(topics::costmap(c).name(), Need::Required);
+        }
+        for c in &nf.depth_cameras {
+            io.read(topics::depth(c).name(), Need::Required)
+                .read(topics::camera_info(c).name(), Need::Required);
+        }
+        for c in &nf.class_map_cameras {
+            io.read(topics::class_map(c).name(), Need::Required)
+                .read(topics::camera_info(c).name(), Need::Required);
+        }
+        for layer in ["fused", "far_field", "near_field"] {
+            io.write(topics::costmap(layer).name());
+        }
+        Ok(io)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_far_field_is_required_only_when_nothing_near_feeds_the_map() {
+        use farsight_stage::DeclaresTopics;
+        let need_of = |c: &FusionStageConfig, topic: &str| {
+            let io = c.topics("fusion", std::path::Path::new(".")).unwrap();
+            io.reads.iter().find(|r| r.topic == topic).map(|r| r.need)
+        };
+        let far_only = FusionStageConfig {
+            local_costmaps: vec![],
+            ..Default::default()
+        };
+        assert_eq!(need_of(&far_only, "bins/polar"), Some(Need::Required));
+        let both = FusionStageConfig::default();
+        assert_eq!(need_of(&both, "bins/polar"), Some(Need::Optional));
+        assert_eq!(need_of(&both, "costmap/local"), Some(Need::Required));
+        assert_eq!(need_of(&both, "state/pose"), Some(Need::Required));
+        let near_only = FusionStageConfig {
+            use_far_field: false,
+            ..Default::default()
+        };
+        assert_eq!(need_of(&near_only, "bins/polar"), None);
+        let io = both.topics("fusion", std::path::Path::new(".")).unwrap();
+        assert_eq!(
+            io.writes,
+            [
+                "health/fusion",
+                "costmap/fused",
+                "costmap/far_field",
+                "costmap/near_field"
+            ]
+        );
+    }
 
     #[test]
     fn bad_values_are_named() {

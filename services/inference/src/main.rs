@@ -85,6 +85,7 @@ fn lazy<T, E: std::error::Error + Send + Sync + 'static>(
 
 fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
+    let instance = args.instance.as_str();
     farsight_stage::init_tracing(args.log_format);
     let config: InferenceConfig = load_config(args.config.as_deref())?;
     let base = args.config_dir();
@@ -111,7 +112,7 @@ fn run() -> Result<()> {
         .map(ClassTableFile::open)
         .transpose()?;
 
-    let bus = Bus::open(STAGE)?;
+    let bus = Bus::open(instance)?;
     // The normals backend reads depth (and the camera model for the mount);
     // every other backend reads the camera frames.
     let uses_depth = matches!(backend, Backend::Normals(..));
@@ -130,10 +131,10 @@ fn run() -> Result<()> {
         heatmap: None,
         far_field: None,
     };
-    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
+    let mut health = Health::new(&bus, instance, config.health_rate_hz)?;
     health.set(HealthState::OK, "");
     tracing::info!(backend = %config.backend, input = %input_topic.name(), "inference config");
-    farsight_stage::announce_ready(STAGE);
+    farsight_stage::announce_ready(instance);
 
     let clock = WallClock;
     let mut last_poll = clock.now_ns();

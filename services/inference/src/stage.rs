@@ -22,8 +22,9 @@
 
 use crate::hsv::HsvRange;
 use crate::normals::NormalsConfig;
+use farsight_interfaces::topics;
 use farsight_stage::ranges::RATE_HZ;
-use farsight_stage::{ConfigError, Range, Ranges, Validate};
+use farsight_stage::{ConfigError, Io, Need, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -101,6 +102,55 @@ impl Validate for InferenceConfig {
                 "\"onnx\", \"hsv\" or \"normals\"",
             )),
         }
+    }
+}
+
+impl farsight_stage::DeclaresTopics for InferenceConfig {
+    fn topics(&self, instance: &str, config_dir: &std::path::Path) -> Result<Io, String> {
+        use crate::model_config::{ModelConfig, OutputKind};
+        let c = &self.camera;
+        let mut io = Io::for_instance(instance);
+        match self.backend.as_str() {
+            "normals" => {
+                // The camera model gives the mount: no normals without it.
+                io.read(topics::depth(c).name(), Need::Required)
+                    .read(topics::camera_info(c).name(), Need::Required)
+                    .write(topics::navigability(c).name());
+            }
+            "hsv" => {
+                io.read(topics::camera_image(c).name(), Need::Required)
+                    .write(topics::navigability(c).name());
+            }
+            _ => {
+                io.read(topics::camera_image(c).name(), Need::Required);
+                let model = ModelConfig::load(&config_dir.join(&self.model_config))
+                    .map_err(|e| e.to_string())?;
+                let has_table = !self.class_table.is_empty() || model.class_table_path().is_some();
+                for o in &model.outputs {
+                    match o.kind {
+                        OutputKind::ClassLogits | OutputKind::ClassProbabilities => {
+                            io.write(topics::class_map(c).name())
+                                .write(topics::class_confidence(c).name());
+                            if has_table {
+                                io.write(topics::navigability(c).name());
+                            }
+                        }
+                        OutputKind::DrivableMask => {
+                            io.write(topics::navigability(c).name());
+                        }
+                        OutputKind::AffordanceHeatmap => {
+                            io.write(topics::affordance_heatmap(c).name());
+                        }
+                        OutputKind::FarFieldEnsemble => {
+                            io.write(topics::far_field_logits(c).name());
+                        }
+                        // Computed for HIP's planner, not published.
+                        OutputKind::TrajectoryLogLikelihood => {}
+                    }
+                }
+            }
+        }
+        Ok(io)
     }
 }
 

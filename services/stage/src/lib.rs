@@ -46,10 +46,12 @@
 //! ```
 
 pub mod inputs;
+pub mod io;
 pub mod ranges;
 pub mod watchdog;
 
 pub use inputs::{Freshness, InputId, Need, StageInputs};
+pub use io::{DeclaresTopics, Io};
 pub use ranges::{Range, Ranges};
 
 use farsight_interfaces::fixed::FixedStr;
@@ -267,6 +269,11 @@ pub struct StageArgs {
     pub config: Option<PathBuf>,
     /// `--log-format text|json` (or `FARSIGHT_LOG_FORMAT`).
     pub log_format: LogFormat,
+    /// `--instance NAME`: this instance's name in the graph (its health
+    /// topic `health/<NAME>`, its `NAME ready` line, its rows in `farsight
+    /// inspect`), so a stage can run more than once (four cameras, four
+    /// inference instances). Default: the stage's own name.
+    pub instance: String,
 }
 
 /// A command line that cannot be used.
@@ -289,6 +296,7 @@ impl StageArgs {
                 Ok("json") => LogFormat::Json,
                 _ => LogFormat::Text,
             },
+            instance: stage.to_string(),
             ..Default::default()
         };
         let mut it = args.into_iter();
@@ -299,6 +307,14 @@ impl StageArgs {
                         .next()
                         .ok_or_else(|| ArgsError("--config needs a file path".into()))?;
                     out.config = Some(PathBuf::from(v));
+                }
+                "--instance" => {
+                    let v = it
+                        .next()
+                        .ok_or_else(|| ArgsError("--instance needs a name".into()))?;
+                    topics::validate_name(&v)
+                        .map_err(|e| ArgsError(format!("--instance {v:?}: {}", e.why)))?;
+                    out.instance = v;
                 }
                 "--log-format" => {
                     out.log_format = match it.next().as_deref() {
@@ -313,8 +329,9 @@ impl StageArgs {
                 }
                 "--help" | "-h" => {
                     println!(
-                        "farsight-{stage}\n\nUSAGE: farsight-{stage} [--config FILE.toml] [--log-format text|json]\n\n\
+                        "farsight-{stage}\n\nUSAGE: farsight-{stage} [--config FILE.toml] [--instance NAME] [--log-format text|json]\n\n\
                          Without --config the documented defaults are used.\n\
+                         --instance names this instance (health/<NAME>); default: {stage}.\n\
                          Logging: RUST_LOG (e.g. info,farsight=debug). Shared memory namespace: FARSIGHT_IPC_PREFIX."
                     );
                     std::process::exit(0);

@@ -47,17 +47,18 @@ fn ground_point(camera: &Camera, u: f64, v: f64) -> Option<(f64, f64)> {
 
 fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
+    let instance = args.instance.as_str();
     farsight_stage::init_tracing(args.log_format);
     let config: SubgoalStageConfig = load_config(args.config.as_deref())?;
     if ["dstar_lite", "hip"].contains(&config.method.as_str()) {
         // A relative library path is relative to the config file, like a model's.
         let base = args.config.as_deref().and_then(std::path::Path::parent);
-        return run_map_planner(&config, base.unwrap_or(std::path::Path::new(".")));
+        return run_map_planner(&config, base.unwrap_or(std::path::Path::new(".")), instance);
     }
     let mut tracker =
         GoalTracker::anchored_at(config.anchor_latitude_deg, config.anchor_longitude_deg)?;
     let povnav = config.method == "povnav";
-    let bus = Bus::open(STAGE)?;
+    let bus = Bus::open(instance)?;
     let nav = bus.slice_subscriber(&topics::navigability(&config.camera))?;
     let bins = bus.subscriber(&topics::angular_bins())?;
     let infos = bus.subscriber(&topics::camera_info(&config.camera))?;
@@ -66,8 +67,8 @@ fn run() -> Result<()> {
     let subgoals = bus.publisher(&topics::subgoal())?;
     let visual_path = bus.publisher(&topics::path("visual"))?;
     let visual_path_robot = bus.publisher(&topics::path("visual_robot"))?;
-    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
-    farsight_stage::announce_ready(STAGE);
+    let mut health = Health::new(&bus, instance, config.health_rate_hz)?;
+    farsight_stage::announce_ready(instance);
 
     let clock = WallClock;
     let mut camera: Option<Camera> = None;
@@ -353,7 +354,11 @@ impl MapPlanner {
 /// the robot at most `replan_rate_hz` (and on every change for D* Lite),
 /// publish the world path on `nav/path/planned` and a subgoal
 /// `subgoal_distance_m` along it.
-fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> Result<()> {
+fn run_map_planner(
+    config: &SubgoalStageConfig,
+    base_dir: &std::path::Path,
+    instance: &str,
+) -> Result<()> {
     let mut planner = match config.method.as_str() {
         "hip" => {
             let file: LibraryFile =
@@ -380,14 +385,14 @@ fn run_map_planner(config: &SubgoalStageConfig, base_dir: &std::path::Path) -> R
     };
     let mut tracker =
         GoalTracker::anchored_at(config.anchor_latitude_deg, config.anchor_longitude_deg)?;
-    let bus = Bus::open(STAGE)?;
+    let bus = Bus::open(instance)?;
     let costmaps = bus.slice_subscriber(&topics::costmap(&config.costmap))?;
     let poses = bus.subscriber(&topics::pose())?;
     let goals = bus.subscriber(&topics::goal())?;
     let subgoals = bus.publisher(&topics::subgoal())?;
     let planned = bus.publisher(&topics::path("planned"))?;
-    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
-    farsight_stage::announce_ready(STAGE);
+    let mut health = Health::new(&bus, instance, config.health_rate_hz)?;
+    farsight_stage::announce_ready(instance);
 
     let clock = WallClock;
     let mut pose: Option<Pose> = None;

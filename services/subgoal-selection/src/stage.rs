@@ -34,9 +34,10 @@ use crate::hip::HipPlannerConfig;
 use crate::lrn_head::LrnHeadConfig;
 use crate::planner::WorldPlannerConfig;
 use crate::povnav::PovnavConfig;
+use farsight_interfaces::topics;
 use farsight_stage::inputs::INPUT_DEADLINE_S;
 use farsight_stage::ranges::RATE_HZ;
-use farsight_stage::{ConfigError, Range, Ranges, Validate};
+use farsight_stage::{ConfigError, Io, Need, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -145,5 +146,36 @@ impl Validate for SubgoalStageConfig {
             .map_err(|e| ConfigError::invalid("camera", &self.camera, e.why))?;
         farsight_stage::check_anchor(self.anchor_latitude_deg, self.anchor_longitude_deg)?;
         self.povnav.check_rules()
+    }
+}
+
+impl farsight_stage::DeclaresTopics for SubgoalStageConfig {
+    fn topics(&self, instance: &str, _: &std::path::Path) -> Result<Io, String> {
+        let c = &self.camera;
+        let mut io = Io::for_instance(instance);
+        // No goal, no subgoal: every method needs one.
+        io.read(topics::pose().name(), Need::Required)
+            .read(topics::goal().name(), Need::Required)
+            .write(topics::subgoal().name());
+        match self.method.as_str() {
+            "povnav" => {
+                io.read(topics::navigability(c).name(), Need::Required)
+                    .read(topics::camera_info(c).name(), Need::Required)
+                    .write(topics::path("visual").name())
+                    .write(topics::path("visual_robot").name());
+            }
+            "dstar_lite" | "hip" => {
+                io.read(topics::costmap(&self.costmap).name(), Need::Required)
+                    .write(topics::path("planned").name());
+                if self.method == "hip" && !self.hip_model.as_os_str().is_empty() {
+                    // Stale or missing: HIP plans without its learned term.
+                    io.read(topics::camera_image(c).name(), Need::Optional);
+                }
+            }
+            _ => {
+                io.read(topics::angular_bins().name(), Need::Required);
+            }
+        }
+        Ok(io)
     }
 }

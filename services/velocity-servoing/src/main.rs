@@ -38,11 +38,12 @@ fn main() {
 
 fn run() -> Result<()> {
     let args = StageArgs::parse(STAGE)?;
+    let instance = args.instance.as_str();
     farsight_stage::init_tracing(args.log_format);
     let config: ServoStageConfig = load_config(args.config.as_deref())?;
     let mut tracker =
         GoalTracker::anchored_at(config.anchor_latitude_deg, config.anchor_longitude_deg)?;
-    let bus = Bus::open(STAGE)?;
+    let bus = Bus::open(instance)?;
     let subgoals = bus.subscriber(&topics::subgoal())?;
     let paths = bus.subscriber(&topics::path(&config.path_topic))?;
     let estops = bus.subscriber(&topics::estop())?;
@@ -51,8 +52,8 @@ fn run() -> Result<()> {
     let commands = bus.publisher(&topics::Topic::<VelocityCommand>::new(
         config.command_topic.as_str(),
     )?)?;
-    let mut health = Health::new(&bus, STAGE, config.health_rate_hz)?;
-    farsight_stage::announce_ready(STAGE);
+    let mut health = Health::new(&bus, instance, config.health_rate_hz)?;
+    farsight_stage::announce_ready(instance);
 
     let tracked = match config.track {
         Track::Subgoal => "nav/subgoal".to_string(),

@@ -38,9 +38,10 @@
 //! ```
 
 use crate::ServoConfig;
+use farsight_interfaces::topics;
 use farsight_stage::ranges::RATE_HZ;
 pub use farsight_stage::ClockSource;
-use farsight_stage::{ConfigError, Range, Ranges, Validate};
+use farsight_stage::{ConfigError, Io, Need, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 
 /// Which input the servo follows.
@@ -140,5 +141,27 @@ impl ServoStageConfig {
         (self.command_ttl_s * 1e3)
             .round()
             .clamp(1.0, f64::from(u16::MAX)) as u16
+    }
+}
+
+impl farsight_stage::DeclaresTopics for ServoStageConfig {
+    fn topics(&self, instance: &str, _: &std::path::Path) -> Result<Io, String> {
+        let mut io = Io::for_instance(instance);
+        match self.track {
+            Track::Subgoal => {
+                // The pose becomes required once a goal is set (the
+                // goal-reached stop needs it); a subgoal alone can steer.
+                io.read(topics::subgoal().name(), Need::Required)
+                    .read(topics::pose().name(), Need::Optional);
+            }
+            Track::Path => {
+                io.read(topics::path(&self.path_topic).name(), Need::Required)
+                    .read(topics::pose().name(), Need::Required);
+            }
+        }
+        io.read(topics::goal().name(), Need::Optional)
+            .read(topics::estop().name(), Need::Optional)
+            .write(self.command_topic.clone());
+        Ok(io)
     }
 }

@@ -183,7 +183,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     std::fs::write(
         &bridge_cfg,
         format!(
-            "robot = \"demo\"\n\n[zenoh]\nmode = \"peer\"\nlisten = [\"{endpoint}\"]\n\n\
+            "robot = \"demo\"\nimport = []\n\n[zenoh]\nmode = \"peer\"\nlisten = [\"{endpoint}\"]\n\n\
              [[export]]\ntopic = \"camera/front/image\"\ndownsample = 2\ncompression = \"png\"\n\n\
              [[export]]\ntopic = \"health/camera-ingest\"\n\n[[export]]\ntopic = \"camera/front/info\"\n\n\
              [[export]]\ntopic = \"perception/front/navigability\"\ncompression = \"png\"\n\n\

@@ -12,6 +12,7 @@
 //! farsight diff golden.mcap run.mcap                                # field-by-field comparison
 //! farsight dataset run.mcap --out data/train                        # LRN + FITAM labels from a recording
 //! farsight inspect --connect tcp/ROBOT:7447 --robot NAME            # the graph from a laptop
+//! farsight graph check graphs/robot.toml --mermaid robot.mmd         # nodes, topics, what would not run
 //! ```
 
 mod bench;
@@ -24,6 +25,7 @@ mod chaos;
 mod dataset;
 mod demo;
 mod demo_sim;
+mod graph;
 mod hip_library;
 mod infer;
 mod inspect;
@@ -72,6 +74,9 @@ enum Command {
     Diff(recording::DiffArgs),
     /// The robot's graph from a laptop over zenoh: stages, health, rates, latency; echo; snapshot PNGs.
     Inspect(inspect::InspectArgs),
+    /// Graph files (graphs/*.toml): check one, draw it as Mermaid or DOT.
+    #[command(subcommand)]
+    Graph(graph::GraphCommand),
 }
 
 fn main() {
@@ -89,6 +94,7 @@ fn main() {
         Command::Replay(a) => recording::run_replay(a),
         Command::Diff(a) => recording::run_diff(a),
         Command::Inspect(a) => inspect::run(a),
+        Command::Graph(c) => graph::run(c),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");
