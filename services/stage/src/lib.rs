@@ -274,6 +274,10 @@ pub struct StageArgs {
     /// inspect`), so a stage can run more than once (four cameras, four
     /// inference instances). Default: the stage's own name.
     pub instance: String,
+    /// `--base-dir DIR`: relative paths in the config resolve against DIR
+    /// instead of the config file's folder (`farsight run` passes the graph
+    /// file's folder for a config written inline in the graph).
+    pub base_dir: Option<PathBuf>,
 }
 
 /// A command line that cannot be used.
@@ -316,6 +320,12 @@ impl StageArgs {
                         .map_err(|e| ArgsError(format!("--instance {v:?}: {}", e.why)))?;
                     out.instance = v;
                 }
+                "--base-dir" => {
+                    let v = it
+                        .next()
+                        .ok_or_else(|| ArgsError("--base-dir needs a folder".into()))?;
+                    out.base_dir = Some(PathBuf::from(v));
+                }
                 "--log-format" => {
                     out.log_format = match it.next().as_deref() {
                         Some("text") => LogFormat::Text,
@@ -329,7 +339,7 @@ impl StageArgs {
                 }
                 "--help" | "-h" => {
                     println!(
-                        "farsight-{stage}\n\nUSAGE: farsight-{stage} [--config FILE.toml] [--instance NAME] [--log-format text|json]\n\n\
+                        "farsight-{stage}\n\nUSAGE: farsight-{stage} [--config FILE.toml] [--instance NAME] [--base-dir DIR] [--log-format text|json]\n\n\
                          Without --config the documented defaults are used.\n\
                          --instance names this instance (health/<NAME>); default: {stage}.\n\
                          Logging: RUST_LOG (e.g. info,farsight=debug). Shared memory namespace: FARSIGHT_IPC_PREFIX."
@@ -346,8 +356,12 @@ impl StageArgs {
         Ok(out)
     }
 
-    /// Directory that relative paths in the config are resolved against.
+    /// Directory that relative paths in the config are resolved against:
+    /// `--base-dir`, else the config file's folder, else `.`.
     pub fn config_dir(&self) -> PathBuf {
+        if let Some(dir) = &self.base_dir {
+            return dir.clone();
+        }
         self.config
             .as_deref()
             .and_then(Path::parent)

@@ -52,8 +52,7 @@ fn run() -> Result<()> {
     let config: SubgoalStageConfig = load_config(args.config.as_deref())?;
     if ["dstar_lite", "hip"].contains(&config.method.as_str()) {
         // A relative library path is relative to the config file, like a model's.
-        let base = args.config.as_deref().and_then(std::path::Path::parent);
-        return run_map_planner(&config, base.unwrap_or(std::path::Path::new(".")), instance);
+        return run_map_planner(&config, &args.config_dir(), instance);
     }
     let mut tracker =
         GoalTracker::anchored_at(config.anchor_latitude_deg, config.anchor_longitude_deg)?;

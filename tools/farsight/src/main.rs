@@ -13,6 +13,7 @@
 //! farsight dataset run.mcap --out data/train                        # LRN + FITAM labels from a recording
 //! farsight inspect --connect tcp/ROBOT:7447 --robot NAME            # the graph from a laptop
 //! farsight graph check graphs/robot.toml --mermaid robot.mmd         # nodes, topics, what would not run
+//! farsight run graphs/orfd.toml --out run                           # start and supervise a graph's nodes
 //! ```
 
 mod bench;
@@ -31,6 +32,7 @@ mod infer;
 mod inspect;
 mod probe;
 mod recording;
+mod run;
 mod sim_tuning;
 
 use clap::{Parser, Subcommand};
@@ -77,6 +79,9 @@ enum Command {
     /// Graph files (graphs/*.toml): check one, draw it as Mermaid or DOT.
     #[command(subcommand)]
     Graph(graph::GraphCommand),
+    /// Start this machine's nodes of a graph file and supervise them as
+    /// systemd would (notify, watchdog, restart with back-off); Ctrl-C stops.
+    Run(run::RunArgs),
 }
 
 fn main() {
@@ -95,6 +100,7 @@ fn main() {
         Command::Diff(a) => recording::run_diff(a),
         Command::Inspect(a) => inspect::run(a),
         Command::Graph(c) => graph::run(c),
+        Command::Run(a) => run::run(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");
