@@ -268,8 +268,13 @@ impl TensorHeader {
         &self.dims[..(self.rank as usize).min(4)]
     }
 
+    /// Elements the shape holds; `usize::MAX` when that overflows (a
+    /// corrupt header from the wire: no payload is that long).
     pub fn element_count(&self) -> usize {
-        self.shape().iter().map(|&d| d as usize).product()
+        self.shape()
+            .iter()
+            .try_fold(1usize, |n, &d| n.checked_mul(d as usize))
+            .unwrap_or(usize::MAX)
     }
 }
 
@@ -818,6 +823,17 @@ mod tests {
         let t = TensorHeader::new(Stamp::default(), 0, &[32, 3, 15, 3]);
         assert_eq!(t.shape(), &[32, 3, 15, 3]);
         assert_eq!(t.element_count(), 32 * 3 * 15 * 3);
+    }
+
+    /// Found by fuzzing (tools/fuzz): four u32::MAX dims overflowed the
+    /// product (a panic with overflow checks on) in bin-projection's check
+    /// of a received tensor.
+    #[test]
+    fn tensor_element_count_of_a_huge_shape_saturates() {
+        let t = TensorHeader::new(Stamp::default(), 0, &[u32::MAX; 4]);
+        assert_eq!(t.element_count(), usize::MAX);
+        let t = TensorHeader::new(Stamp::default(), 0, &[u32::MAX, 0, u32::MAX, u32::MAX]);
+        assert_eq!(t.element_count(), 0);
     }
 
     #[test]

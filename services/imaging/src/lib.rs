@@ -242,6 +242,19 @@ pub fn decode_png_within(
         .map_err(|e| ImageError::Png(e.to_string()))?;
     let (w, h) = (reader.info().width, reader.info().height);
     limits.check(w, h)?;
+    // png 0.18.1 panics expanding a palette that is not a whole number of
+    // RGB entries (found by fuzzing); the PNG spec requires one.
+    if let Some(p) = reader
+        .info()
+        .palette
+        .as_deref()
+        .filter(|p| p.len() % 3 != 0)
+    {
+        return Err(ImageError::Png(format!(
+            "palette of {} bytes: not a whole number of RGB entries",
+            p.len()
+        )));
+    }
     let size = reader
         .output_buffer_size()
         .ok_or_else(|| ImageError::Png("image too large".into()))?;
@@ -297,17 +310,34 @@ pub fn decode_jpeg_within(
         )));
     }
     let options = DecoderOptions::default().jpeg_set_out_colorspace(ColorSpace::RGB);
-    let mut decoder = zune_jpeg::JpegDecoder::new_with_options(bytes, options);
-    decoder
-        .decode_headers()
-        .map_err(|e| ImageError::Jpeg(format!("{e:?}")))?;
-    let info = decoder
-        .info()
-        .ok_or_else(|| ImageError::Jpeg("no image header".into()))?;
-    limits.check(u32::from(info.width), u32::from(info.height))?;
-    let data = decoder
-        .decode()
-        .map_err(|e| ImageError::Jpeg(format!("{e:?}")))?;
+    // zune-jpeg 0.4 panics on some corrupt headers (sampling factors it
+    // cannot handle: an unwrap in mcu.rs, asserts in worker.rs and the
+    // upsampler; found by fuzzing). A corrupt file is an error, not a
+    // crash of the stage that reads it.
+    let (info, mut data) = std::panic::catch_unwind(|| {
+        let mut decoder = zune_jpeg::JpegDecoder::new_with_options(bytes, options);
+        decoder
+            .decode_headers()
+            .map_err(|e| ImageError::Jpeg(format!("{e:?}")))?;
+        let info = decoder
+            .info()
+            .ok_or_else(|| ImageError::Jpeg("no image header".into()))?;
+        limits.check(u32::from(info.width), u32::from(info.height))?;
+        let data = decoder
+            .decode()
+            .map_err(|e| ImageError::Jpeg(format!("{e:?}")))?;
+        Ok((info, data))
+    })
+    .unwrap_or_else(|_| {
+        Err(ImageError::Jpeg(
+            "corrupt header (the decoder panicked)".into(),
+        ))
+    })?;
+    // A greyscale JPEG comes out with one channel whatever colour space
+    // was asked for: spread it to RGB.
+    if data.len() == usize::from(info.width) * usize::from(info.height) {
+        data = data.iter().flat_map(|&v| [v, v, v]).collect();
+    }
     let header = ImageHeader::packed(
         Stamp::default(),
         0,
@@ -469,6 +499,63 @@ pub fn unit_to_mono16(values: &[f32]) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Found by fuzzing (tools/fuzz): a JPEG whose SOF declares sampling
+    /// factors the decoder cannot handle made zune-jpeg 0.4 panic.
+    #[test]
+    fn jpeg_with_bogus_sampling_factors_is_an_error_not_a_panic() {
+        let (h, d) = rgb(8, 8);
+        let good = encode_jpeg(&h, &d, 85).unwrap();
+        let sof = good.windows(2).position(|w| w == [0xff, 0xc0]).unwrap();
+        // Each component's sampling byte is at sof + 11 + 3 * k.
+        for (k, factor) in [(2, 0x24), (1, 0x81), (1, 0x18), (0, 0x88), (2, 0x41)] {
+            let mut bad = good.clone();
+            bad[sof + 11 + 3 * k] = factor;
+            let r = std::panic::catch_unwind(|| decode_jpeg(&bad));
+            assert!(r.is_ok(), "component {k} sampling {factor:#x}: panicked");
+            if let Ok((h, px)) = r.unwrap() {
+                h.validate(px.len()).unwrap();
+            }
+        }
+    }
+
+    /// Found by fuzzing (tools/fuzz): a palette PNG whose PLTE chunk is 5
+    /// bytes long (CRCs right) made png 0.18.1 panic while expanding it.
+    #[test]
+    fn png_with_a_ragged_palette_is_an_error_not_a_panic() {
+        #[rustfmt::skip]
+        let bad: [u8; 103] = [
+            0x89, 0x50, 0x4e, 0x47, 0x0d, 0x0a, 0x1a, 0x0a, 0x00, 0x00, 0x00, 0x0d, 0x49, 0x48, 0x44, 0x52,
+            0x00, 0x00, 0x00, 0x06, 0x00, 0x00, 0x00, 0x03, 0x08, 0x03, 0x00, 0x00, 0x00, 0x87, 0xdf, 0x8e,
+            0xc9, 0x00, 0x00, 0x00, 0x05, 0x50, 0x4c, 0x54, 0x45, 0x00, 0x00, 0x00, 0xff, 0x00, 0xf1, 0x42,
+            0x29, 0x73, 0x00, 0x00, 0x00, 0x1d, 0x49, 0x44, 0x41, 0x54, 0x78, 0x9c, 0x63, 0x61, 0x60, 0x64,
+            0x64, 0xfc, 0xcb, 0xc8, 0xc4, 0xcc, 0xc0, 0xf8, 0x8f, 0x99, 0x81, 0x99, 0x91, 0xe1, 0x1f, 0xf3,
+            0x7f, 0x06, 0x00, 0x20, 0xed, 0x04, 0x11, 0x74, 0xc5, 0x71, 0xd0, 0x00, 0x00, 0x00, 0x00, 0x49,
+            0x45, 0x4e, 0x44, 0xae, 0x42, 0x60, 0x82,
+        ];
+        let r = std::panic::catch_unwind(|| decode_png(&bad));
+        let e = r.expect("no panic").unwrap_err();
+        assert!(e.to_string().contains("palette of 5 bytes"), "{e}");
+    }
+
+    /// A greyscale JPEG (what `encode_jpeg` writes for MONO8) decodes to RGB.
+    #[test]
+    fn greyscale_jpeg_decodes_to_rgb() {
+        let h = ImageHeader::packed(Stamp::default(), 0, 16, 8, PixelEncoding::MONO8);
+        let grey: Vec<u8> = (0..16 * 8).map(|i| (i * 2) as u8).collect();
+        let (out, px) = decode_jpeg(&encode_jpeg(&h, &grey, 95).unwrap()).unwrap();
+        assert_eq!(
+            (out.width, out.height, out.encoding),
+            (16, 8, PixelEncoding::RGB8)
+        );
+        assert_eq!(px.len(), 16 * 8 * 3);
+        for (p, g) in px.chunks_exact(3).zip(&grey) {
+            assert!(
+                p[0] == p[1] && p[1] == p[2] && p[0].abs_diff(*g) <= 8,
+                "{p:?} vs {g}"
+            );
+        }
+    }
 
     fn rgb(w: u32, h: u32) -> (ImageHeader, Vec<u8>) {
         let header = ImageHeader::packed(Stamp::new(3, 4), 1, w, h, PixelEncoding::RGB8);

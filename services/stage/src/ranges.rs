@@ -152,8 +152,10 @@ impl fmt::Display for Range {
 }
 
 /// A rate in Hz (outputs, health, replanning): a stage waking more often
-/// than 1 kHz is a typo, not a setting.
-pub const RATE_HZ: Range = Range::above_to(0.0, 1000.0).unit("Hz");
+/// than 1 kHz is a typo, not a setting; one waking less than once in 1000 s
+/// is no rate (a tiny positive one such as 1e-320 has a period no
+/// `Duration` holds, which panicked the stages at start: found by fuzzing).
+pub const RATE_HZ: Range = Range::between(1e-3, 1000.0).unit("Hz");
 
 /// A numeric config value as a key declares it.
 pub trait KeyValue: Copy + fmt::Display {
@@ -269,6 +271,20 @@ mod tests {
         );
         assert_eq!(Range::finite().to_string(), "a finite number");
         assert_eq!(Range::cost_s_per_m().to_string(), "x > 0 s/m (inf: lethal)");
+    }
+
+    /// Every rate RATE_HZ accepts has a period a `Duration` holds (the
+    /// stages wait `Duration::from_secs_f64(1 / rate)`).
+    #[test]
+    fn every_accepted_rate_has_a_period() {
+        assert_eq!(RATE_HZ.to_string(), "0.001 <= x <= 1000 Hz");
+        for rate in [1e-320, 1e-300, 1e-20, 0.0009, 0.0] {
+            assert!(!RATE_HZ.contains(rate), "{rate}");
+        }
+        for rate in [1e-3, 0.5, 1000.0] {
+            assert!(RATE_HZ.contains(rate), "{rate}");
+            assert!(std::time::Duration::try_from_secs_f64(1.0 / rate).is_ok());
+        }
     }
 
     #[test]
