@@ -2,6 +2,7 @@
 //! mount; broken files are counted and skipped while the stream goes on; a
 //! missing V4L2 camera stops the stage at start-up with a message that says so.
 
+use farsight_fuzz::seeds::Cdr;
 use farsight_interfaces::camera::Camera;
 use farsight_interfaces::msg::{ImageHeader, PixelEncoding, Stamp};
 use farsight_interfaces::topics;
@@ -267,42 +268,6 @@ fn a_missing_v4l2_camera_stops_the_stage_with_a_clear_error() {
     );
 }
 
-/// Minimal CDR writer for the test's ROS 2 messages (alignment counted from
-/// the end of the 4-byte encapsulation header).
-struct Cdr(Vec<u8>);
-
-impl Cdr {
-    fn new() -> Self {
-        Cdr(Vec::new())
-    }
-    fn align(&mut self, n: usize) {
-        while !self.0.len().is_multiple_of(n) {
-            self.0.push(0);
-        }
-    }
-    fn u32(&mut self, v: u32) -> &mut Self {
-        self.align(4);
-        self.0.extend(v.to_le_bytes());
-        self
-    }
-    fn string(&mut self, s: &str) -> &mut Self {
-        self.u32(s.len() as u32 + 1);
-        self.0.extend(s.as_bytes());
-        self.0.push(0);
-        self
-    }
-    fn bytes(&mut self, b: &[u8]) -> &mut Self {
-        self.u32(b.len() as u32);
-        self.0.extend(b);
-        self
-    }
-    fn finish(&self) -> Vec<u8> {
-        let mut out = vec![0, 1, 0, 0];
-        out.extend(&self.0);
-        out
-    }
-}
-
 fn ros_image(sec: u32, w: u32, h: u32, step: u32, data: &[u8]) -> Vec<u8> {
     let mut c = Cdr::new();
     c.u32(sec)
@@ -311,7 +276,7 @@ fn ros_image(sec: u32, w: u32, h: u32, step: u32, data: &[u8]) -> Vec<u8> {
         .u32(h)
         .u32(w)
         .string("rgb8");
-    c.0.push(0); // is_bigendian
+    c.u8(0); // is_bigendian
     c.u32(step).bytes(data);
     c.finish()
 }

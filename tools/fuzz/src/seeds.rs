@@ -117,36 +117,38 @@ fn images() -> Vec<Seed> {
 }
 
 /// CDR as rosbag2 writes it: little-endian, fields aligned to their size
-/// from the end of the 4-byte encapsulation header.
-struct Cdr(Vec<u8>);
+/// from the end of the 4-byte encapsulation header (the fuzz seeds and
+/// camera-ingest's tests build ROS 2 messages with it).
+#[derive(Default)]
+pub struct Cdr(Vec<u8>);
 
 impl Cdr {
-    fn new() -> Self {
+    pub fn new() -> Self {
         Self(Vec::new())
     }
-    fn u32(&mut self, v: u32) -> &mut Self {
+    pub fn u32(&mut self, v: u32) -> &mut Self {
         while !self.0.len().is_multiple_of(4) {
             self.0.push(0);
         }
         self.0.extend(v.to_le_bytes());
         self
     }
-    fn u8(&mut self, v: u8) -> &mut Self {
+    pub fn u8(&mut self, v: u8) -> &mut Self {
         self.0.push(v);
         self
     }
-    fn string(&mut self, s: &str) -> &mut Self {
+    pub fn string(&mut self, s: &str) -> &mut Self {
         self.u32(s.len() as u32 + 1);
         self.0.extend(s.as_bytes());
         self.0.push(0);
         self
     }
-    fn bytes(&mut self, b: &[u8]) -> &mut Self {
+    pub fn bytes(&mut self, b: &[u8]) -> &mut Self {
         self.u32(b.len() as u32);
         self.0.extend(b);
         self
     }
-    fn finish(&self) -> Vec<u8> {
+    pub fn finish(&self) -> Vec<u8> {
         let mut out = vec![0, 1, 0, 0];
         out.extend(&self.0);
         out
