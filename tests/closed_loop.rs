@@ -10,8 +10,9 @@
 //! Every stage of the demo runs on the stamps' clock (one output per input,
 //! time from the capture times), so two runs of a seed drive the same track
 //! bit for bit, with D* Lite as with POVNav (inference on the rendered RGB
-//! -> subgoal-selection -> servo); and the navigation benchmark's
-//! in-process POVNav trial drives the graph's track too.
+//! -> subgoal-selection -> servo); and for each method, the navigation
+//! benchmark's in-process trial of the same graph file drives the track
+//! the processes drive.
 
 use farsight_tests::{bin, Namespace, Proc};
 use std::time::Duration;
@@ -82,6 +83,44 @@ fn the_default_demo_runs_the_shipped_fitam_model_in_the_graph_and_leaves_the_tra
         let t = info.topics.iter().find(|t| t.topic == topic);
         assert!(t.is_some_and(|t| t.count > 100), "{topic}: {info}");
     }
+    // The recorder is in the lock-step answer set: the simulator waits for
+    // it before each next frame, so it lost no frame of the drive, and it
+    // heard every instance's health from its first report.
+    let frames = poses(&out.join("poses.csv")).lines().count() as u64 - 1;
+    let count = |topic: &str| {
+        info.topics
+            .iter()
+            .find(|t| t.topic == topic)
+            .map_or(0, |t| t.count)
+    };
+    for topic in ["camera/front/image", "state/pose"] {
+        assert_eq!(count(topic), frames, "{topic}: {info}");
+    }
+    assert!(count("cmd/velocity") >= frames, "{info}");
+    for instance in [
+        "inference",
+        "bin-projection",
+        "costmap-fusion",
+        "subgoal-selection",
+        "velocity-servoing",
+    ] {
+        assert!(
+            count(&format!("health/{instance}")) > 0,
+            "{instance}: {info}"
+        );
+    }
+    let report = std::fs::read_to_string(out.join("recorder-report.txt")).unwrap();
+    assert!(
+        report.contains("health/inference") && report.contains("(not counted)"),
+        "health gaps are not counted as losses:\n{report}"
+    );
+    for topic in ["camera/front/image", "state/pose", "cmd/velocity"] {
+        let line = report.lines().find(|l| l.starts_with(topic));
+        assert!(
+            line.is_some_and(|l| l.ends_with("skipped 0")),
+            "{topic}:\n{report}"
+        );
+    }
 }
 
 /// Runs `farsight demo` with `args` into a fresh folder; returns the folder.
@@ -142,62 +181,121 @@ fn assert_same_track(a: &std::path::Path, b: &std::path::Path) {
     }
 }
 
-#[test]
-fn a_benchmark_trial_drives_the_same_track_as_the_process_graph() {
-    let ns = Namespace::new("benchgraph");
-    let graph = demo(
-        &ns,
-        "graph",
-        &[
-            "--method",
-            "povnav",
-            "--oracle",
-            "--scenario",
-            "obstacle-field-1",
-            "--max-time-s",
-            "60",
-        ],
-    );
-    let traces = graph.with_file_name("bench");
-    let mut bench = Proc::start(
-        "farsight",
-        &[
-            "bench",
-            "nav",
-            "--trials",
-            "1",
-            "--methods",
-            "povnav_oracle",
-            "--scenarios",
-            "obstacle-field-1",
-            "--max-time-s",
-            "60",
-            "--trace",
-            traces.to_str().unwrap(),
-        ],
-        &ns,
-    );
+/// The navigation benchmark's rows and the graph file each runs, as
+/// `farsight bench nav --list` gives them.
+fn bench_methods(ns: &Namespace) -> Vec<(String, String)> {
+    let mut p = Proc::start("farsight", &["bench", "nav", "--list"], ns);
     assert_eq!(
-        bench.wait_exit(Duration::from_secs(120)),
+        p.wait_exit(Duration::from_secs(30)),
         Some(0),
         "{}",
-        bench.stderr_so_far()
+        p.stderr_so_far()
     );
-    let g = poses(&graph.join("poses.csv"));
-    let t = poses(&traces.join("obstacle-field-1-povnav_oracle-1.csv"));
-    assert_eq!(g.lines().count(), 601, "60 s at 10 Hz and the header");
-    let last: Vec<f64> = g
-        .lines()
-        .last()
-        .unwrap()
-        .split(',')
-        .map(|x| x.parse().unwrap())
-        .collect();
-    assert!(last[1] > 40.0, "it drove into the field: {last:?}");
-    for (i, (x, y)) in g.lines().zip(t.lines()).enumerate() {
-        assert_eq!(x, y, "pose {i}: process graph vs benchmark trial");
+    let rows: Vec<(String, String)> = std::iter::from_fn(|| {
+        p.wait_line(Duration::from_millis(100), |_| true)
+            .map(|(_, l)| l)
+    })
+    .map(|l| {
+        let (m, g) = l.split_once('\t').unwrap_or_else(|| panic!("{l:?}"));
+        (m.to_string(), g.to_string())
+    })
+    .collect();
+    assert!(rows.len() >= 6, "{rows:?}");
+    rows
+}
+
+#[test]
+fn per_method_a_benchmark_trial_drives_the_track_its_graph_drives_as_processes_every_time() {
+    // Short drives (20 s of simulated time) into the obstacle field: each
+    // method's graph file twice as processes (`farsight demo --graph`,
+    // through `farsight run`), and the benchmark's in-process trial of the
+    // same file twice (one `farsight bench nav` per pass).
+    let ns = Namespace::new("benchgraph");
+    let (scenario, seconds) = ("obstacle-field-1", "20");
+    let methods_and_graphs = bench_methods(&ns);
+    let bench = |pass: &str| {
+        let traces = ns.write("placeholder", "").with_file_name(pass);
+        let methods: Vec<&str> = methods_and_graphs.iter().map(|(m, _)| m.as_str()).collect();
+        let methods = methods.join(",");
+        let mut p = Proc::start(
+            "farsight",
+            &[
+                "bench",
+                "nav",
+                "--trials",
+                "1",
+                "--methods",
+                &methods,
+                "--scenarios",
+                scenario,
+                "--max-time-s",
+                seconds,
+                "--trace",
+                traces.to_str().unwrap(),
+            ],
+            &ns,
+        );
+        assert_eq!(
+            p.wait_exit(Duration::from_secs(240)),
+            Some(0),
+            "{}",
+            p.stderr_so_far()
+        );
+        traces
+    };
+    let (first, second) = (bench("bench-a"), bench("bench-b"));
+    let mut parted = Vec::new();
+    for (method, graph) in &methods_and_graphs {
+        let graph = farsight_tests::repo_root().join(graph);
+        let trace = format!("{scenario}-{method}-1.csv");
+        let t = poses(&first.join(&trace));
+        assert_eq!(
+            t,
+            poses(&second.join(&trace)),
+            "{method}: two benchmark trials"
+        );
+        assert_eq!(
+            t.lines().count(),
+            201,
+            "{method}: 20 s at 10 Hz and the header"
+        );
+        for run in ["a", "b"] {
+            let out = demo(
+                &ns,
+                &format!("{method}-{run}"),
+                &[
+                    "--graph",
+                    graph.to_str().unwrap(),
+                    "--scenario",
+                    scenario,
+                    "--max-time-s",
+                    seconds,
+                ],
+            );
+            let g = poses(&out.join("poses.csv"));
+            if let Some((i, (x, y))) = g
+                .lines()
+                .zip(t.lines())
+                .enumerate()
+                .find(|(_, (x, y))| x != y)
+            {
+                parted.push(format!(
+                    "{method} run {run}: pose {i}: process {x} vs trial {y}"
+                ));
+            } else if g.lines().count() != t.lines().count() {
+                parted.push(format!("{method} run {run}: lengths differ"));
+            }
+        }
+        let last: Vec<f64> = t
+            .lines()
+            .last()
+            .unwrap()
+            .split(',')
+            .map(|x| x.parse().unwrap())
+            .collect();
+        eprintln!("{method}: ends at {last:?}");
     }
-    assert_eq!(g.lines().count(), t.lines().count());
+    assert!(parted.is_empty(), "{parted:#?}");
 }
 
 #[test]

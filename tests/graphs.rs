@@ -113,6 +113,12 @@ method = "lrn"
 bin_widht_deg = 5.0
 
 [[node]]
+name = "guided"
+stage = "subgoal-selection"
+[node.config]
+guide = "nav/goal"
+
+[[node]]
 name = "inference"
 stage = "inference"
 [node.config]
@@ -137,6 +143,9 @@ value = [0.35, 1.0]
         // An unknown config key, named by the stage's own config check.
         "node `bins` (bin-projection):",
         "unknown field `bin_widht_deg`",
+        // A type mismatch: a topic's kind is its name's, so a config that
+        // points a Subgoal input at the goal (a NavGoal) is refused there.
+        "node `guided` (subgoal-selection): config key `guide` = nav/goal: expected a nav/subgoal/<name> topic",
     ] {
         assert!(text.contains(expected), "missing {expected:?}:\n{text}");
     }
@@ -237,4 +246,32 @@ fn an_instance_name_keys_the_health_topic_and_ready_line() {
         .unwrap();
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--instance \"no spaces\""));
+}
+
+#[test]
+fn a_recorder_nodes_topics_are_queued_edges_and_a_second_queue_reader_is_refused() {
+    let ns = Namespace::new("graphqueue");
+    let recorder = |name: &str| {
+        format!(
+            "[[node]]\nname = \"{name}\"\nstage = \"recorder\"\n[node.config]\ntopics = [\"state/pose\", \"cmd/velocity\"]\nqueue_depth = 32\n\n"
+        )
+    };
+    let base = "[[node]]\nname = \"servo\"\nstage = \"velocity-servoing\"\n\n[[external]]\ntopic = \"nav/subgoal\"\nfrom = \"the test\"\n\n[[external]]\ntopic = \"state/pose\"\nfrom = \"the test\"\n\n";
+    let one = ns.write("one.toml", &format!("{base}{}", recorder("rec")));
+    let (ok, text) = check(&one, &[]);
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("queue `state/pose`: depth 32 for rec"),
+        "{text}"
+    );
+    let two = ns.write(
+        "two.toml",
+        &format!("{base}{}{}", recorder("rec"), recorder("rec-b")),
+    );
+    let (ok, text) = check(&two, &[]);
+    assert!(!ok, "{text}");
+    assert!(
+        text.contains("topic `cmd/velocity` on robot: 2 queue readers (rec, rec-b)"),
+        "{text}"
+    );
 }

@@ -145,14 +145,10 @@ fn depth_normals_stage_marks_the_orfd_road_navigable() {
     let data = repo_root().join("../shared/data/orfd");
     let ingest_cfg = ns.write(
         "camera-ingest.toml",
-        &orfd_ingest_toml(&format!(
+        &(orfd_ingest_toml(&format!(
             "{PACED}\ndepth_folder = {}",
             toml_string(&data.join("dense_depth").display().to_string())
-        ))
-        .replace(
-            "cy = 376.48\n",
-            "cy = 376.48\nxyz_m = [0.0, 0.0, 1.5]\nrpy_deg = [0.0, 6.7, 0.0]\n",
-        ),
+        )) + "xyz_m = [0.0, 0.0, 1.5]\nrpy_deg = [0.0, 6.7, 0.0]\n"),
     );
     let inference_cfg = ns.write(
         "inference.toml",

@@ -149,3 +149,45 @@ fn run_refuses_to_run_under_systemd() {
         run.stderr_so_far()
     );
 }
+
+#[test]
+fn the_orfd_graphs_recorder_node_records_every_frame_from_the_queues() {
+    // `farsight demo --orfd` runs graphs/orfd.toml under `farsight run`:
+    // the real ORFD frames at 10 Hz on the wall clock through TwinLiteNet
+    // and POVNav, with the graph's recorder node reading each topic from
+    // its queue (farsight run declares them to every node; the demo, which
+    // publishes the pose and goal itself, feeds those queues too).
+    let ns = Namespace::new("orfdrec");
+    let out = ns.write("placeholder", "").with_file_name("orfd");
+    let mut demo = Proc::start(
+        "farsight",
+        &["demo", "--orfd", "--out", out.to_str().unwrap()],
+        &ns,
+    );
+    let code = demo.wait_exit(Duration::from_secs(180));
+    assert_eq!(code, Some(0), "{}", demo.stderr_so_far());
+    let run_log = std::fs::read_to_string(out.join("run.log")).unwrap();
+    assert!(
+        run_log.contains("queues: camera/front/image=16"),
+        "{run_log}"
+    );
+    let info = farsight_recording::read::Recording::open(&out.join("recording.mcap"))
+        .unwrap()
+        .info()
+        .unwrap();
+    let count = |topic: &str| {
+        info.topics
+            .iter()
+            .find(|t| t.topic == topic)
+            .map_or(0, |t| t.count)
+    };
+    // Three passes over the six frames, each one recorded, and the goal
+    // the demo published before the recorder started (the queue's history).
+    assert_eq!(count("camera/front/image"), 18, "{info}");
+    assert_eq!(count("camera/front/info"), 18, "{info}");
+    assert_eq!(count("nav/goal"), 1, "{info}");
+    // Inference skips frames that come while it is busy (latest-value, at
+    // real time): what it did publish came through.
+    assert!(count("perception/front/navigability") >= 12, "{info}");
+    assert!(count("health/inference") > 0, "{info}");
+}

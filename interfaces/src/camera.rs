@@ -237,6 +237,22 @@ impl Mount {
     pub fn height_m(&self) -> f64 {
         self.translation_m.z
     }
+
+    /// Where a ray from this camera (a robot-frame direction, any length)
+    /// meets flat ground, `(x_m, y_m)` in the robot frame (x ahead, y
+    /// left); `None` for a ray at or above the horizon, or a camera not
+    /// above the ground. The one flat-ground projection every stage uses
+    /// (POVNav's visual path to ground points, the near-field class map).
+    pub fn ground_point_m(&self, ray_robot: &Vector3<f64>) -> Option<(f64, f64)> {
+        let h = self.height_m();
+        (ray_robot.z < -1e-6 && h > 0.0).then(|| {
+            let t = h / -ray_robot.z;
+            (
+                self.translation_m.x + t * ray_robot.x,
+                self.translation_m.y + t * ray_robot.y,
+            )
+        })
+    }
 }
 
 /// A camera of the robot: id, name, model and mount.
@@ -261,6 +277,12 @@ impl Camera {
     /// Unit ray through a pixel, in the robot frame.
     pub fn pixel_ray_robot(&self, u: f64, v: f64) -> Vector3<f64> {
         self.mount.robot_from_optical * self.model.unproject(u, v)
+    }
+
+    /// Where pixel `(u, v)`'s ray meets flat ground, in the robot frame;
+    /// see [`Mount::ground_point_m`].
+    pub fn ground_point_m(&self, u: f64, v: f64) -> Option<(f64, f64)> {
+        self.mount.ground_point_m(&self.pixel_ray_robot(u, v))
     }
 
     /// Azimuth of a pixel's ray in the robot frame (0 ahead, counter-clockwise,
@@ -577,6 +599,30 @@ mod tests {
 
     fn orfd() -> CameraModel {
         CameraModel::pinhole(1280, 720, 1487.75, 1471.06, 625.01, 376.48)
+    }
+
+    #[test]
+    fn ground_point_meets_flat_ground_ahead_and_not_above_the_horizon() {
+        let cam = Camera::new(
+            0,
+            "front",
+            CameraModel::pinhole(80, 60, 40.0, 40.0, 39.5, 29.5),
+            Mount::from_xyz_rpy_deg([0.5, 0.0, 1.0], [0.0; 3]),
+        );
+        // 40 px below the centre at fy = 40: 45 degrees down, 1 m up, so
+        // 1 m ahead of the camera, 1.5 m ahead of the robot origin.
+        let (x, y) = cam.ground_point_m(39.5, 69.5).unwrap();
+        assert!((x - 1.5).abs() < 1e-9 && y.abs() < 1e-9, "({x}, {y})");
+        // Left of centre lands left (+y).
+        assert!(cam.ground_point_m(0.0, 59.0).unwrap().1 > 0.0);
+        assert_eq!(cam.ground_point_m(39.5, 28.5), None);
+        assert_eq!(cam.ground_point_m(39.5, 29.5), None, "the horizon line");
+        // A camera on the ground sees no ground ahead.
+        let low = Camera {
+            mount: Mount::from_xyz_rpy_deg([0.0; 3], [0.0; 3]),
+            ..cam
+        };
+        assert_eq!(low.ground_point_m(39.5, 69.5), None);
     }
 
     #[test]

@@ -37,6 +37,7 @@ pub mod camera;
 pub mod clock;
 pub mod fixed;
 pub mod geo;
+pub mod message;
 pub mod msg;
 pub mod topics;
 pub mod transport;

@@ -172,8 +172,15 @@ pub fn polar_bins() -> PolarBinsTopic {
 pub fn costmap(layer: &str) -> CostmapTopic {
     Topic::known(format!("costmap/{layer}"))
 }
+/// The subgoal the servo follows.
 pub fn subgoal() -> Topic<Subgoal> {
     Topic::known("nav/subgoal".into())
+}
+/// A named subgoal (`nav/subgoal/lrn`): one method's choice that another
+/// instance follows as its goal (LRN's heading guiding POVNav or a local
+/// planner), so it is not the one the servo follows.
+pub fn named_subgoal(name: &str) -> Topic<Subgoal> {
+    Topic::known(format!("nav/subgoal/{name}"))
 }
 /// The planned or visual path (frame in the message).
 pub fn path(kind: &str) -> Topic<Path> {
@@ -232,7 +239,7 @@ pub fn kind_of(topic: &str) -> Option<TopicKind> {
         ["bins", "angular"] => TopicKind::AngularBins,
         ["bins", "polar"] => TopicKind::PolarBins,
         ["costmap", _] => TopicKind::Costmap,
-        ["nav", "subgoal"] => TopicKind::Subgoal,
+        ["nav", "subgoal"] | ["nav", "subgoal", _] => TopicKind::Subgoal,
         ["nav", "path", _] => TopicKind::Path,
         ["nav", "goal"] => TopicKind::Goal,
         ["state", "pose"] => TopicKind::Pose,
@@ -275,6 +282,7 @@ mod tests {
             polar_bins().name().to_string(),
             costmap("fused").name().to_string(),
             subgoal().name().to_string(),
+            named_subgoal("lrn").name().to_string(),
             path("visual").name().to_string(),
             goal().name().to_string(),
             pose().name().to_string(),
@@ -287,6 +295,8 @@ mod tests {
             validate_name(&n).unwrap();
         }
         assert_eq!(kind_of("camera/front/nonsense"), None);
+        assert_eq!(kind_of("nav/subgoal/lrn"), Some(TopicKind::Subgoal));
+        assert_eq!(kind_of("nav/subgoal/lrn/x"), None);
     }
 
     #[test]

@@ -66,11 +66,22 @@ impl Namespace {
 
     /// Opens a bus in this namespace from the test process itself.
     pub fn bus(&self, name: &str) -> farsight_interfaces::transport::ipc::Bus {
+        self.bus_with_queues(name, None)
+    }
+
+    /// [`Namespace::bus`] with queued topics declared (`topic=depth,...`,
+    /// as `FARSIGHT_QUEUES`).
+    pub fn bus_with_queues(
+        &self,
+        name: &str,
+        queues: Option<&str>,
+    ) -> farsight_interfaces::transport::ipc::Bus {
         farsight_interfaces::transport::ipc::Bus::open_with(
             name,
             &farsight_interfaces::transport::ipc::IpcSettings {
                 prefix: Some(self.prefix.clone()),
                 root: Some(format!("{}/", self.root.display())),
+                queues: queues.map(str::to_string),
             },
         )
         .expect("test bus")
@@ -182,15 +193,19 @@ pub fn wait_health(
 }
 
 /// camera-ingest's config for the six real ORFD frames (one camera,
-/// `front`, with the ORFD intrinsics), plus `extra` keys of that camera.
-/// With `pace_by` in `extra` it is lock-step: each frame waits for the
-/// consumer's answer to the one before, so no frame is skipped however
-/// slow the machine.
+/// `front`, with the ORFD intrinsics of `tests/fixtures/orfd/front.yaml`),
+/// plus `extra` keys of that camera. With `pace_by` in `extra` it is
+/// lock-step: each frame waits for the consumer's answer to the one
+/// before, so no frame is skipped however slow the machine.
 pub fn orfd_ingest_toml(extra: &str) -> String {
     let frames = repo_root().join("../shared/data/orfd/image_data");
+    let camera_info = repo_root().join("tests/fixtures/orfd/front.yaml");
+    // The model table comes last, so a test that mounts the camera appends
+    // its `xyz_m`/`rpy_deg` lines.
     format!(
-        "[[cameras]]\nfolder = {}\n{extra}\n[cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\n",
-        toml_string(&frames.display().to_string())
+        "[[cameras]]\nfolder = {}\n{extra}\n[cameras.model]\nname = \"front\"\ncamera_info = {}\n",
+        toml_string(&frames.display().to_string()),
+        toml_string(&camera_info.display().to_string())
     )
 }
 
@@ -358,6 +373,22 @@ impl Proc {
                 }
             }
         }
+    }
+
+    /// Waits for a line containing each of `needles`, in whatever order
+    /// they come (the nodes of a graph get ready concurrently); returns the
+    /// needles never seen.
+    pub fn wait_all_lines<'a>(&self, timeout: Duration, needles: &[&'a str]) -> Vec<&'a str> {
+        let end = Instant::now() + timeout;
+        let mut missing: Vec<&str> = needles.to_vec();
+        while !missing.is_empty() {
+            let left = end.saturating_duration_since(Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok((_, l)) => missing.retain(|n| !l.contains(n)),
+                Err(_) => break,
+            }
+        }
+        missing
     }
 
     /// Runs `farsight ARGS --user USER` (in network namespace `netns`, if

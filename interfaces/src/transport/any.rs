@@ -21,6 +21,7 @@
 use super::ipc::{Bus, InputListener, IpcHeader, IpcMessage, Publisher, SlicePublisher};
 use super::ipc::{SliceSubscriber, Subscriber};
 use super::{wire, SkipCounter, TransportError};
+use crate::message::{Message, Sliced};
 use crate::msg::*;
 use crate::topics::{kind_of, Slice, Topic, TopicKind};
 use serde::de::DeserializeOwned;
@@ -40,6 +41,14 @@ fn kind(name: &str) -> Result<TopicKind, TransportError> {
         value: name.into(),
         expected: "a farsight topic (see farsight_interfaces::topics)",
     })
+}
+
+fn wrong_kind(topic: &str, m: &Message) -> TransportError {
+    TransportError::Setting {
+        key: "message",
+        value: format!("{:?} on {topic}", m.kind()),
+        expected: "a message of the topic's own kind",
+    }
 }
 
 fn decode_err(topic: &str) -> impl FnOnce(wire::WireError) -> TransportError + '_ {
@@ -85,10 +94,13 @@ pub fn wire_stamp(topic: &str, bytes: &[u8]) -> Result<Stamp, TransportError> {
 pub trait FixedSubscriber {
     fn listener(&self) -> &InputListener;
     fn take_wire(&self) -> Result<Option<(Stamp, Vec<u8>)>, TransportError>;
+    fn take_message(&self) -> Result<Option<Message>, TransportError>;
+    /// Every message waiting, oldest first, wire-encoded with its stamp.
+    fn take_all_wire(&self) -> Result<Vec<(Stamp, Vec<u8>)>, TransportError>;
     fn skips(&self) -> SkipCounter;
 }
 
-impl<M: IpcMessage + Serialize> FixedSubscriber for Subscriber<M> {
+impl<M: IpcMessage + Serialize + Into<Message>> FixedSubscriber for Subscriber<M> {
     fn listener(&self) -> &InputListener {
         Subscriber::listener(self)
     }
@@ -100,6 +112,18 @@ impl<M: IpcMessage + Serialize> FixedSubscriber for Subscriber<M> {
                 Ok(Some((m.stamp(), bytes)))
             }
         }
+    }
+    fn take_message(&self) -> Result<Option<Message>, TransportError> {
+        Ok(self.latest()?.map(Into::into))
+    }
+    fn take_all_wire(&self) -> Result<Vec<(Stamp, Vec<u8>)>, TransportError> {
+        self.drain()?
+            .into_iter()
+            .map(|m| {
+                let bytes = wire::encode_message(&m).map_err(decode_err(self.topic()))?;
+                Ok((m.stamp(), bytes))
+            })
+            .collect()
     }
     fn skips(&self) -> SkipCounter {
         Subscriber::skips(self)
@@ -115,15 +139,42 @@ pub enum AnySubscriber {
     Fixed(Box<dyn FixedSubscriber>),
 }
 
-fn fixed_sub<M: IpcMessage + Serialize>(
+fn fixed_sub<M: IpcMessage + Serialize + Into<Message>>(
     bus: &Bus,
     name: &str,
+    queued: bool,
 ) -> Result<AnySubscriber, TransportError> {
-    Ok(AnySubscriber::Fixed(Box::new(bus.subscriber(&topic::<
-        M,
-    >(
-        name
-    )?)?)))
+    let t = topic::<M>(name)?;
+    let sub = if queued {
+        bus.queue_subscriber(&t)?
+    } else {
+        bus.subscriber(&t)?
+    };
+    Ok(AnySubscriber::Fixed(Box::new(sub)))
+}
+
+fn slice_sub<H: IpcHeader, E: super::ipc::IpcElem>(
+    bus: &Bus,
+    name: &str,
+    queued: bool,
+) -> Result<SliceSubscriber<H, E>, TransportError> {
+    let t = topic::<Slice<H, E>>(name)?;
+    if queued {
+        bus.queue_slice_subscriber(&t)
+    } else {
+        bus.slice_subscriber(&t)
+    }
+}
+
+fn slice_all_wire<H: IpcHeader + Serialize, E: super::ipc::IpcElem>(
+    sub: &SliceSubscriber<H, E>,
+) -> Result<Vec<(Stamp, Vec<u8>)>, TransportError> {
+    let mut out = Vec::new();
+    while let Some(s) = sub.next()? {
+        let bytes = wire::encode_slice(s.header(), s.data()).map_err(decode_err(sub.topic()))?;
+        out.push((s.header().stamp(), bytes));
+    }
+    Ok(out)
 }
 
 fn slice_wire<H: IpcHeader + Serialize, E: super::ipc::IpcElem>(
@@ -140,27 +191,47 @@ fn slice_wire<H: IpcHeader + Serialize, E: super::ipc::IpcElem>(
 }
 
 impl AnySubscriber {
-    /// Subscribes to the topic `name`; an unknown name is refused, naming it.
+    /// Subscribes to the topic `name` (latest-value); an unknown name is
+    /// refused, naming it.
     pub fn open(bus: &Bus, name: &str) -> Result<Self, TransportError> {
+        Self::open_as(bus, name, false)
+    }
+
+    /// Subscribes to the queue of topic `name` (every message, in order;
+    /// see [`Bus::queue_subscriber`]); refused where none is declared.
+    pub fn open_queued(bus: &Bus, name: &str) -> Result<Self, TransportError> {
+        Self::open_as(bus, name, true)
+    }
+
+    fn open_as(bus: &Bus, name: &str, q: bool) -> Result<Self, TransportError> {
         Ok(match kind(name)? {
-            TopicKind::Image => Self::Image(bus.slice_subscriber(&topic::<Slice<_, _>>(name)?)?),
-            TopicKind::Tensor => Self::Tensor(bus.slice_subscriber(&topic::<Slice<_, _>>(name)?)?),
-            TopicKind::PolarBins => {
-                Self::Polar(bus.slice_subscriber(&topic::<Slice<_, _>>(name)?)?)
-            }
-            TopicKind::Costmap => {
-                Self::Costmap(bus.slice_subscriber(&topic::<Slice<_, _>>(name)?)?)
-            }
-            TopicKind::CameraInfo => fixed_sub::<CameraInfo>(bus, name)?,
-            TopicKind::AngularBins => fixed_sub::<AngularBins>(bus, name)?,
-            TopicKind::Subgoal => fixed_sub::<Subgoal>(bus, name)?,
-            TopicKind::Path => fixed_sub::<Path>(bus, name)?,
-            TopicKind::Goal => fixed_sub::<NavGoal>(bus, name)?,
-            TopicKind::Pose => fixed_sub::<Pose>(bus, name)?,
-            TopicKind::VelocityCommand => fixed_sub::<VelocityCommand>(bus, name)?,
-            TopicKind::EStop => fixed_sub::<EStop>(bus, name)?,
-            TopicKind::Health => fixed_sub::<StageHealth>(bus, name)?,
+            TopicKind::Image => Self::Image(slice_sub(bus, name, q)?),
+            TopicKind::Tensor => Self::Tensor(slice_sub(bus, name, q)?),
+            TopicKind::PolarBins => Self::Polar(slice_sub(bus, name, q)?),
+            TopicKind::Costmap => Self::Costmap(slice_sub(bus, name, q)?),
+            TopicKind::CameraInfo => fixed_sub::<CameraInfo>(bus, name, q)?,
+            TopicKind::AngularBins => fixed_sub::<AngularBins>(bus, name, q)?,
+            TopicKind::Subgoal => fixed_sub::<Subgoal>(bus, name, q)?,
+            TopicKind::Path => fixed_sub::<Path>(bus, name, q)?,
+            TopicKind::Goal => fixed_sub::<NavGoal>(bus, name, q)?,
+            TopicKind::Pose => fixed_sub::<Pose>(bus, name, q)?,
+            TopicKind::VelocityCommand => fixed_sub::<VelocityCommand>(bus, name, q)?,
+            TopicKind::EStop => fixed_sub::<EStop>(bus, name, q)?,
+            TopicKind::Health => fixed_sub::<StageHealth>(bus, name, q)?,
         })
+    }
+
+    /// Every message waiting, oldest first, wire-encoded with its stamp:
+    /// on a queue subscriber each message sent since the last call; on a
+    /// latest-value one at most the newest.
+    pub fn take_all_wire(&self) -> Result<Vec<(Stamp, Vec<u8>)>, TransportError> {
+        match self {
+            Self::Image(s) => slice_all_wire(s),
+            Self::Tensor(s) => slice_all_wire(s),
+            Self::Polar(s) => slice_all_wire(s),
+            Self::Costmap(s) => slice_all_wire(s),
+            Self::Fixed(s) => s.take_all_wire(),
+        }
     }
 
     /// The listener to attach to a WaitSet.
@@ -185,6 +256,25 @@ impl AnySubscriber {
         }
     }
 
+    /// The newest message since the last call, copied out of shared memory.
+    pub fn take_message(&self) -> Result<Option<Message>, TransportError> {
+        fn sliced<H: IpcHeader, E: super::ipc::IpcElem>(
+            sub: &SliceSubscriber<H, E>,
+        ) -> Result<Option<Sliced<H, E>>, TransportError> {
+            Ok(sub.latest()?.map(|s| Sliced {
+                header: *s.header(),
+                data: s.data().to_vec(),
+            }))
+        }
+        Ok(match self {
+            Self::Image(s) => sliced(s)?.map(Message::Image),
+            Self::Tensor(s) => sliced(s)?.map(Message::Tensor),
+            Self::Polar(s) => sliced(s)?.map(Message::PolarBins),
+            Self::Costmap(s) => sliced(s)?.map(Message::Costmap),
+            Self::Fixed(s) => s.take_message()?,
+        })
+    }
+
     /// Messages latest-value delivery skipped (gaps in the sequence numbers).
     pub fn skips(&self) -> SkipCounter {
         match self {
@@ -200,15 +290,23 @@ impl AnySubscriber {
 /// A fixed-size message publisher behind a trait object.
 pub trait FixedPublisher {
     fn publish_wire(&mut self, bytes: &[u8]) -> Result<Stamp, TransportError>;
+    /// Publishes an owned message; one of another type is refused.
+    fn publish_message(&mut self, msg: Message) -> Result<(), TransportError>;
     /// Hands the last message to subscribers that joined since.
     fn deliver_history(&self) -> Result<(), TransportError>;
 }
 
-impl<M: IpcMessage + DeserializeOwned> FixedPublisher for Publisher<M> {
+impl<M: IpcMessage + DeserializeOwned + TryFrom<Message, Error = Message>> FixedPublisher
+    for Publisher<M>
+{
     fn publish_wire(&mut self, bytes: &[u8]) -> Result<Stamp, TransportError> {
         let m: M = wire::decode_message(bytes).map_err(decode_err(self.topic()))?;
         self.publish(&m)?;
         Ok(m.stamp())
+    }
+    fn publish_message(&mut self, msg: Message) -> Result<(), TransportError> {
+        let topic = self.topic().to_string();
+        self.publish(&M::try_from(msg).map_err(|m| wrong_kind(&topic, &m))?)
     }
     fn deliver_history(&self) -> Result<(), TransportError> {
         Publisher::deliver_history(self)
@@ -224,7 +322,7 @@ pub enum AnyPublisher {
     Fixed(Box<dyn FixedPublisher>),
 }
 
-fn fixed_pub<M: IpcMessage + DeserializeOwned>(
+fn fixed_pub<M: IpcMessage + DeserializeOwned + TryFrom<Message, Error = Message>>(
     bus: &Bus,
     name: &str,
 ) -> Result<AnyPublisher, TransportError> {
@@ -295,6 +393,29 @@ impl AnyPublisher {
             Self::Polar(p) => publish_slice(p, bytes),
             Self::Costmap(p) => publish_slice(p, bytes),
             Self::Fixed(p) => p.publish_wire(bytes),
+        }
+    }
+
+    /// Publishes an owned message; one of another topic kind is refused,
+    /// naming the topic.
+    pub fn publish_message(&mut self, msg: Message) -> Result<(), TransportError> {
+        match (self, msg) {
+            (Self::Image(p), Message::Image(m)) => p.publish_copy(m.header, &m.data),
+            (Self::Tensor(p), Message::Tensor(m)) => p.publish_copy(m.header, &m.data),
+            (Self::Polar(p), Message::PolarBins(m)) => p.publish_copy(m.header, &m.data),
+            (Self::Costmap(p), Message::Costmap(m)) => p.publish_copy(m.header, &m.data),
+            (Self::Fixed(p), m) => p.publish_message(m),
+            (p, m) => Err(wrong_kind(p.topic(), &m)),
+        }
+    }
+
+    fn topic(&self) -> &str {
+        match self {
+            Self::Image(p) => p.topic(),
+            Self::Tensor(p) => p.topic(),
+            Self::Polar(p) => p.topic(),
+            Self::Costmap(p) => p.topic(),
+            Self::Fixed(_) => "a fixed-size topic",
         }
     }
 

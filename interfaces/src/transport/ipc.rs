@@ -7,6 +7,16 @@
 //! semantics (buffer of one, safe overflow), read samples in place, and count
 //! what they skipped.
 //!
+//! Queues: a consumer that must not lose messages (the recorder) reads a
+//! topic's *queue* instead: a second service per topic, declared in
+//! `FARSIGHT_QUEUES` (`topic=depth,...`, written by `farsight run` from the
+//! graph's queued edges), with [`QUEUE_SUBSCRIBERS`] slots of `depth`
+//! samples each, which every publisher of the topic also sends to. A deep
+//! buffer on the topic's own service would cost every one of its
+//! [`MAX_SUBSCRIBERS`] slots that depth in shared memory
+//! ([`segment_samples`]): 12 slots at depth 32 of a 2.7 MB camera frame are
+//! about 1.1 GB, the queue's two slots 0.2 GB.
+//!
 //! Restarts: a SIGKILLed process leaves its node behind; [`Bus::open`] and
 //! [`Bus::cleanup_dead_nodes`] remove dead nodes so a restarted stage can
 //! reconnect, and port creation retries once after a clean-up when a service
@@ -51,6 +61,58 @@ pub const MAX_NODES: usize = 32;
 /// Samples a subscriber may hold at once: the one being processed and the
 /// newer one found while draining.
 const MAX_BORROWED: usize = 2;
+/// Samples a publisher may loan at once (iceoryx2's default).
+const MAX_LOANED: usize = 2;
+/// Subscriber slots of a topic's queue: the recorder, and room for a
+/// restarted one whose predecessor has not been cleaned up yet.
+pub const QUEUE_SUBSCRIBERS: usize = 2;
+/// The deepest queue a topic may declare.
+pub const MAX_QUEUE_DEPTH: usize = 1024;
+/// The environment variable that declares the queued topics.
+pub const QUEUES_ENV: &str = "FARSIGHT_QUEUES";
+
+/// Samples in one publisher's shared-memory data segment, as iceoryx2 0.10
+/// sizes it (`required_amount_of_samples_per_data_segment`).
+pub const fn segment_samples(max_subscribers: usize, buffer: usize, history: usize) -> usize {
+    max_subscribers * (buffer + MAX_BORROWED) + history + MAX_LOANED
+}
+
+/// Shared memory one publisher of a topic maps for messages of
+/// `sample_bytes`: its latest-value service and, with `queue_depth`, its
+/// queue.
+pub const fn publisher_shm_bytes(sample_bytes: usize, queue_depth: Option<usize>) -> usize {
+    let base = segment_samples(MAX_SUBSCRIBERS, 1, 1);
+    let queue = match queue_depth {
+        // History 1: a reader that joins late still gets a rare topic's
+        // last message (the goal).
+        Some(d) => segment_samples(QUEUE_SUBSCRIBERS, d, 1),
+        None => 0,
+    };
+    (base + queue) * sample_bytes
+}
+
+/// Parses a queue declaration, `topic=depth,topic=depth` (the value of
+/// [`QUEUES_ENV`]); a bad entry is refused, naming it.
+pub fn parse_queues(
+    spec: &str,
+) -> Result<std::collections::BTreeMap<String, usize>, TransportError> {
+    let mut queues = std::collections::BTreeMap::new();
+    for entry in spec.split(',').map(str::trim).filter(|e| !e.is_empty()) {
+        let bad = || TransportError::Setting {
+            key: QUEUES_ENV,
+            value: entry.to_string(),
+            expected: "topic=depth, a farsight topic and a depth of 1 to 1024",
+        };
+        let (topic, depth) = entry.split_once('=').ok_or_else(bad)?;
+        let depth: usize = depth.trim().parse().map_err(|_| bad())?;
+        let topic = topic.trim();
+        if crate::topics::kind_of(topic).is_none() || !(1..=MAX_QUEUE_DEPTH).contains(&depth) {
+            return Err(bad());
+        }
+        queues.insert(topic.to_string(), depth);
+    }
+    Ok(queues)
+}
 
 /// The event listener of a subscriber, to attach to [`wait_loop`].
 pub type InputListener = Listener<ipc::Service>;
@@ -64,6 +126,9 @@ pub struct IpcSettings {
     /// Root directory of iceoryx2's management files (default `/tmp/iceoryx2`;
     /// the systemd deployment moves it under `/run`).
     pub root: Option<String>,
+    /// The queued topics and their depths, `topic=depth,...` (see the
+    /// module docs; env `FARSIGHT_QUEUES`).
+    pub queues: Option<String>,
 }
 
 impl IpcSettings {
@@ -76,6 +141,7 @@ impl IpcSettings {
             root: std::env::var("FARSIGHT_IPC_ROOT")
                 .ok()
                 .filter(|s| !s.is_empty()),
+            queues: std::env::var(QUEUES_ENV).ok().filter(|s| !s.is_empty()),
         }
     }
 
@@ -107,6 +173,7 @@ impl IpcSettings {
 pub struct Bus {
     node: Node<ipc::Service>,
     name: String,
+    queues: std::collections::BTreeMap<String, usize>,
 }
 
 fn ipc_err(what: &'static str, topic: &str, e: impl Debug) -> TransportError {
@@ -128,6 +195,7 @@ impl Bus {
         // iceoryx2 logs to the console; by default only its errors (IOX2_LOG_LEVEL overrides).
         set_log_level_from_env_or(LogLevel::Error);
         let config = settings.config()?;
+        let queues = parse_queues(settings.queues.as_deref().unwrap_or(""))?;
         let name = NodeName::new(node_name).map_err(|e| ipc_err("node name", node_name, e))?;
         let node = NodeBuilder::new()
             .name(&name)
@@ -139,6 +207,7 @@ impl Bus {
         let bus = Self {
             node,
             name: node_name.to_string(),
+            queues,
         };
         watch_termination_signals(&bus.node);
         let removed = bus.cleanup_dead_nodes();
@@ -165,6 +234,131 @@ impl Bus {
 
     pub fn name(&self) -> &str {
         &self.name
+    }
+
+    /// The depth of `topic`'s queue, if one is declared.
+    pub fn queue_depth(&self, topic: &str) -> Option<usize> {
+        self.queues.get(topic).copied()
+    }
+
+    fn declared_queue(&self, topic: &str) -> Result<usize, TransportError> {
+        self.queue_depth(topic)
+            .ok_or_else(|| TransportError::Setting {
+                key: QUEUES_ENV,
+                value: topic.to_string(),
+                expected: "a topic with a declared queue (a queued edge of the graph)",
+            })
+    }
+
+    /// The service of `topic`'s queue: outside the farsight root, so
+    /// [`Bus::topics`] does not list it as a topic.
+    fn queue_service_name(topic: &str) -> Result<ServiceName, TransportError> {
+        let full = format!("{}-queue/{topic}", crate::topics::ROOT);
+        ServiceName::new(&full).map_err(|e| ipc_err("service name", topic, e))
+    }
+
+    fn fixed_queue_service<M: IpcMessage>(
+        &self,
+        topic: &str,
+        depth: usize,
+    ) -> Result<
+        iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, M, ()>,
+        TransportError,
+    > {
+        let name = Self::queue_service_name(topic)?;
+        self.with_cleanup_retry("queue service", topic, || {
+            self.node
+                .service_builder(&name)
+                .publish_subscribe::<M>()
+                .enable_safe_overflow(true)
+                .subscriber_max_buffer_size(depth)
+                .history_size(1)
+                .subscriber_max_borrowed_samples(MAX_BORROWED)
+                .max_publishers(MAX_PUBLISHERS)
+                .max_subscribers(QUEUE_SUBSCRIBERS)
+                .max_nodes(MAX_NODES)
+                .open_or_create()
+        })
+    }
+
+    /// [`Bus::fixed_queue_service`] for header + slice topics (iceoryx2's
+    /// builder takes the slice and its header as other type parameters).
+    fn slice_queue_service<H: IpcHeader, E: IpcElem>(
+        &self,
+        topic: &str,
+        depth: usize,
+    ) -> Result<
+        iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [E], H>,
+        TransportError,
+    > {
+        let name = Self::queue_service_name(topic)?;
+        self.with_cleanup_retry("queue service", topic, || {
+            self.node
+                .service_builder(&name)
+                .publish_subscribe::<[E]>()
+                .user_header::<H>()
+                .enable_safe_overflow(true)
+                .subscriber_max_buffer_size(depth)
+                .history_size(1)
+                .subscriber_max_borrowed_samples(MAX_BORROWED)
+                .max_publishers(MAX_PUBLISHERS)
+                .max_subscribers(QUEUE_SUBSCRIBERS)
+                .max_nodes(MAX_NODES)
+                .open_or_create()
+        })
+    }
+
+    fn queue_notifier(&self, topic: &str) -> Result<Notifier<ipc::Service>, TransportError> {
+        let events = self.event_ports(topic, &Self::queue_service_name(topic)?)?;
+        self.with_cleanup_retry("queue notifier", topic, || {
+            events.notifier_builder().create()
+        })
+    }
+
+    fn queue_listener(&self, topic: &str) -> Result<Listener<ipc::Service>, TransportError> {
+        let events = self.event_ports(topic, &Self::queue_service_name(topic)?)?;
+        self.with_cleanup_retry("queue listener", topic, || {
+            events.listener_builder().create()
+        })
+    }
+
+    /// A subscriber of `topic`'s queue: every message its publishers send,
+    /// in order, up to the declared depth behind (then the oldest is lost,
+    /// and counted from the frame numbers). Refused for a topic without a
+    /// declared queue.
+    pub fn queue_subscriber<M: IpcMessage>(
+        &self,
+        topic: &Topic<M>,
+    ) -> Result<Subscriber<M>, TransportError> {
+        let depth = self.declared_queue(topic.name())?;
+        let service = self.fixed_queue_service::<M>(topic.name(), depth)?;
+        let port = self.with_cleanup_retry("queue subscriber", topic.name(), || {
+            service.subscriber_builder().buffer_size(depth).create()
+        })?;
+        Ok(Subscriber {
+            port,
+            listener: self.queue_listener(topic.name())?,
+            topic: topic.name().to_string(),
+            skips: Cell::new(SkipCounter::default()),
+        })
+    }
+
+    /// [`Bus::queue_subscriber`] for header + slice topics.
+    pub fn queue_slice_subscriber<H: IpcHeader, E: IpcElem>(
+        &self,
+        topic: &Topic<Slice<H, E>>,
+    ) -> Result<SliceSubscriber<H, E>, TransportError> {
+        let depth = self.declared_queue(topic.name())?;
+        let service = self.slice_queue_service::<H, E>(topic.name(), depth)?;
+        let port = self.with_cleanup_retry("queue subscriber", topic.name(), || {
+            service.subscriber_builder().buffer_size(depth).create()
+        })?;
+        Ok(SliceSubscriber {
+            port,
+            listener: self.queue_listener(topic.name())?,
+            topic: topic.name().to_string(),
+            skips: Cell::new(SkipCounter::default()),
+        })
     }
 
     /// The farsight topics that exist on this bus now (publish-subscribe
@@ -268,9 +462,20 @@ impl Bus {
         let notifier = self.with_cleanup_retry("notifier", topic.name(), || {
             events.notifier_builder().create()
         })?;
+        let queue = match self.queue_depth(topic.name()) {
+            Some(depth) => {
+                let service = self.fixed_queue_service::<M>(topic.name(), depth)?;
+                let port = self.with_cleanup_retry("queue publisher", topic.name(), || {
+                    service.publisher_builder().create()
+                })?;
+                Some((port, self.queue_notifier(topic.name())?))
+            }
+            None => None,
+        };
         Ok(Publisher {
             port,
             notifier,
+            queue,
             topic: topic.name().to_string(),
             sent: Cell::new(0),
         })
@@ -338,9 +543,24 @@ impl Bus {
         let notifier = self.with_cleanup_retry("notifier", topic.name(), || {
             events.notifier_builder().create()
         })?;
+        let queue = match self.queue_depth(topic.name()) {
+            Some(depth) => {
+                let service = self.slice_queue_service::<H, E>(topic.name(), depth)?;
+                let port = self.with_cleanup_retry("queue publisher", topic.name(), || {
+                    service
+                        .publisher_builder()
+                        .initial_max_slice_len(max_len)
+                        .allocation_strategy(AllocationStrategy::Static)
+                        .create()
+                })?;
+                Some((port, self.queue_notifier(topic.name())?))
+            }
+            None => None,
+        };
         Ok(SlicePublisher {
             port,
             notifier,
+            queue,
             topic: topic.name().to_string(),
             max_len,
             sent: Cell::new(0),
@@ -406,10 +626,15 @@ impl<T: Debug + Copy + Default + ZeroCopySend + Stamped + 'static> IpcHeader for
 pub trait IpcElem: Debug + Copy + ZeroCopySend + bytemuck::Pod + 'static {}
 impl<T: Debug + Copy + ZeroCopySend + bytemuck::Pod + 'static> IpcElem for T {}
 
+/// A publisher's port on its topic's queue, and the queue's notifier.
+type QueuePort<P, H> = (IoxPublisher<ipc::Service, P, H>, Notifier<ipc::Service>);
+
 /// Publishes fixed-size messages of one topic.
 pub struct Publisher<M: IpcMessage> {
     port: IoxPublisher<ipc::Service, M, ()>,
     notifier: Notifier<ipc::Service>,
+    /// The topic's queue, where one is declared: a copy of every message.
+    queue: Option<QueuePort<M, ()>>,
     topic: String,
     sent: Cell<u64>,
 }
@@ -423,6 +648,12 @@ impl<M: IpcMessage> Publisher<M> {
         self.sent.set(self.sent.get() + 1);
         // A listener that is gone is not this publisher's failure.
         let _ = self.notifier.notify();
+        if let Some((queue, notifier)) = &self.queue {
+            queue
+                .send_copy(*msg)
+                .map_err(|e| ipc_err("queue send", &self.topic, e))?;
+            let _ = notifier.notify();
+        }
         Ok(())
     }
 
@@ -440,6 +671,11 @@ impl<M: IpcMessage> Publisher<M> {
     /// a stage that restarts still learns the current goal.
     pub fn deliver_history(&self) -> Result<(), TransportError> {
         use iceoryx2::port::update_connections::UpdateConnections;
+        if let Some((queue, _)) = &self.queue {
+            queue
+                .update_connections()
+                .map_err(|e| ipc_err("update connections", &self.topic, e))?;
+        }
         self.port
             .update_connections()
             .map_err(|e| ipc_err("update connections", &self.topic, e))
@@ -472,6 +708,21 @@ impl<M: IpcMessage> Subscriber<M> {
         Ok(newest)
     }
 
+    /// Every message waiting, oldest first (on a queue subscriber: all
+    /// sent since the last call, up to the depth; latest-value: the newest).
+    pub fn drain(&self) -> Result<Vec<M>, TransportError> {
+        let mut out = Vec::new();
+        while let Some(sample) = self
+            .port
+            .receive()
+            .map_err(|e| ipc_err("receive", &self.topic, e))?
+        {
+            self.observe(sample.payload().stamp().frame_seq);
+            out.push(*sample.payload());
+        }
+        Ok(out)
+    }
+
     /// The listener to attach to a WaitSet (see [`wait_loop`]).
     pub fn listener(&self) -> &Listener<ipc::Service> {
         &self.listener
@@ -496,6 +747,8 @@ impl<M: IpcMessage> Subscriber<M> {
 pub struct SlicePublisher<H: IpcHeader, E: IpcElem> {
     port: IoxPublisher<ipc::Service, [E], H>,
     notifier: Notifier<ipc::Service>,
+    /// The topic's queue, where one is declared: a copy of every message.
+    queue: Option<QueuePort<[E], H>>,
     topic: String,
     max_len: usize,
     sent: Cell<u64>,
@@ -532,9 +785,27 @@ impl<H: IpcHeader, E: IpcElem> SlicePublisher<H, E> {
         let mut sample = sample.write_from_fn(|_| E::zeroed());
         let header = fill(sample.payload_mut());
         *sample.user_header_mut() = header;
+        // The queue's copy first: the sample is the topic's once sent.
+        self.send_to_queue(header, sample.payload())?;
         sample.send().map_err(|e| ipc_err("send", &self.topic, e))?;
         self.sent.set(self.sent.get() + 1);
         let _ = self.notifier.notify();
+        Ok(())
+    }
+
+    fn send_to_queue(&self, header: H, data: &[E]) -> Result<(), TransportError> {
+        let Some((queue, notifier)) = &self.queue else {
+            return Ok(());
+        };
+        let sample = queue
+            .loan_slice_uninit(data.len())
+            .map_err(|e| ipc_err("queue loan", &self.topic, e))?;
+        let mut sample = sample.write_from_slice(data);
+        *sample.user_header_mut() = header;
+        sample
+            .send()
+            .map_err(|e| ipc_err("queue send", &self.topic, e))?;
+        let _ = notifier.notify();
         Ok(())
     }
 
@@ -550,7 +821,7 @@ impl<H: IpcHeader, E: IpcElem> SlicePublisher<H, E> {
         sample.send().map_err(|e| ipc_err("send", &self.topic, e))?;
         self.sent.set(self.sent.get() + 1);
         let _ = self.notifier.notify();
-        Ok(())
+        self.send_to_queue(header, data)
     }
 
     pub fn max_len(&self) -> usize {
@@ -602,6 +873,19 @@ impl<H: IpcHeader, E: IpcElem> SliceSubscriber<H, E> {
             self.observe(s.user_header().stamp().frame_seq);
         }
         Ok(newest.map(SliceSample))
+    }
+
+    /// The oldest message waiting, if any (on a queue subscriber: each
+    /// message in the order sent).
+    pub fn next(&self) -> Result<Option<SliceSample<H, E>>, TransportError> {
+        let sample = self
+            .port
+            .receive()
+            .map_err(|e| ipc_err("receive", &self.topic, e))?;
+        if let Some(s) = &sample {
+            self.observe(s.user_header().stamp().frame_seq);
+        }
+        Ok(sample.map(SliceSample))
     }
 
     pub fn listener(&self) -> &Listener<ipc::Service> {
@@ -766,5 +1050,43 @@ fn wedge() -> ! {
     eprintln!("test hook: step wedged (FARSIGHT_TEST_WEDGE_AFTER_S)");
     loop {
         std::thread::park();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_queue_declaration_names_its_bad_entry() {
+        let q = parse_queues("state/pose=64, camera/front/image=8,").unwrap();
+        assert_eq!(q.get("state/pose"), Some(&64));
+        assert_eq!(q.get("camera/front/image"), Some(&8));
+        assert!(parse_queues("").unwrap().is_empty());
+        for bad in [
+            "state/pose",
+            "state/pose=0",
+            "state/pose=2000",
+            "state/pose=x",
+            "not/a/topic=4",
+        ] {
+            let e = parse_queues(bad).unwrap_err().to_string();
+            assert!(e.contains(bad.trim()), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn shared_memory_is_stated_as_iceoryx2_sizes_a_data_segment() {
+        // 12 slots x (1 + 2 borrowed) + history 1 + 2 loaned.
+        assert_eq!(segment_samples(MAX_SUBSCRIBERS, 1, 1), 39);
+        // The queue's 2 slots at depth 16, history 1.
+        assert_eq!(segment_samples(QUEUE_SUBSCRIBERS, 16, 1), 39);
+        assert_eq!(publisher_shm_bytes(100, None), 3900);
+        assert_eq!(publisher_shm_bytes(100, Some(16)), 7800);
+        // The example: 12 slots at depth 32 of a 2.7 MB frame would
+        // be 1.1 GB; the queue costs a fifth of that.
+        let frame = 2_700_000;
+        assert!(segment_samples(MAX_SUBSCRIBERS, 32, 1) * frame > 1_000_000_000);
+        assert!(publisher_shm_bytes(frame, Some(32)) < 300_000_000);
     }
 }

@@ -10,6 +10,10 @@
 //! [`fitam`] is FITAM's counterpart: far-field ensemble outputs per image
 //! slice -> polar (heading x range) cost bins with a measurement variance.
 //!
+//! [`projection_stage`] is the stage that runs either per frame (its binary
+//! is only the wiring); `farsight_stage::CameraModels` keeps each camera's
+//! newest model.
+//!
 //! ```
 //! use farsight_bin_projection::{BinGeometry, CameraBins, LrnBinsConfig, LrnBins};
 //! use farsight_interfaces::camera::{Camera, CameraModel, Mount};
@@ -25,6 +29,7 @@
 //! ```
 
 pub mod fitam;
+pub mod projection_stage;
 pub mod stage;
 
 use farsight_interfaces::camera::Camera;

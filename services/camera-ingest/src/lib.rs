@@ -14,6 +14,9 @@
 //! A broken file (truncated image, wrong size) is logged, counted and skipped;
 //! the stream goes on.
 //!
+//! The stage itself is [`ingest_stage::IngestStage`] (the binary runs it on
+//! the stage runtime); its sources, each in its own thread, are in `sources`.
+//!
 //! Config (`camera-ingest.toml`, defaults shown):
 //!
 //! ```toml
@@ -50,8 +53,10 @@
 //! rpy_deg = [0.0, 0.0, 0.0]  # a rear camera: yaw 180
 //! ```
 
+pub mod ingest_stage;
 pub mod mcap_source;
 pub mod ros_cdr;
+mod sources;
 pub mod v4l2;
 
 use farsight_interfaces::camera::CameraConfig;

@@ -48,6 +48,8 @@
 //! operator = false
 //! ```
 
+pub mod mux_stage;
+
 use farsight_interfaces::base::CommandGate;
 use farsight_interfaces::msg::{CommandReason, EStop, VelocityCommand};
 use farsight_interfaces::topics;

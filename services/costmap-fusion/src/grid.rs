@@ -35,6 +35,10 @@ pub struct ScrollingGrid<T> {
     resolution_m: f64,
     /// Global index of the south-west (first column, last row) cell.
     origin: (i64, i64),
+    /// Where the origin cell is stored (`origin mod size`), so that finding
+    /// a cell inside the window takes an add and a compare, not two
+    /// divisions (a far-field frame looks up some 100,000 cells).
+    origin_slot: (usize, usize),
     cells: Vec<T>,
     fill: T,
 }
@@ -49,6 +53,7 @@ impl<T: Clone> ScrollingGrid<T> {
             height,
             resolution_m,
             origin: (0, 0),
+            origin_slot: (0, 0),
             cells: vec![fill.clone(); width * height],
             fill,
         }
@@ -73,9 +78,20 @@ impl<T: Clone> ScrollingGrid<T> {
             && (self.origin.1..self.origin.1 + self.height as i64).contains(&gy)
     }
 
+    /// The storage index of a cell inside the window: `gx mod width`,
+    /// `gy mod height`.
     fn slot(&self, gx: i64, gy: i64) -> usize {
-        let x = gx.rem_euclid(self.width as i64) as usize;
-        let y = gy.rem_euclid(self.height as i64) as usize;
+        debug_assert!(self.contains(gx, gy), "({gx}, {gy}) outside the window");
+        let wrap = |offset: i64, first: usize, size: usize| {
+            let k = first + offset as usize;
+            if k >= size {
+                k - size
+            } else {
+                k
+            }
+        };
+        let x = wrap(gx - self.origin.0, self.origin_slot.0, self.width);
+        let y = wrap(gy - self.origin.1, self.origin_slot.1, self.height);
         y * self.width + x
     }
 
@@ -118,6 +134,10 @@ impl<T: Clone> ScrollingGrid<T> {
             return false;
         }
         let old = std::mem::replace(&mut self.origin, new);
+        self.origin_slot = (
+            new.0.rem_euclid(self.width as i64) as usize,
+            new.1.rem_euclid(self.height as i64) as usize,
+        );
         let stays = |gx: i64, gy: i64| {
             (old.0..old.0 + self.width as i64).contains(&gx)
                 && (old.1..old.1 + self.height as i64).contains(&gy)

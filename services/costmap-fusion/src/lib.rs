@@ -10,7 +10,10 @@
 //!   the planning cost, and costmap messages for each layer;
 //! - [`near_field`]: depth images and class maps -> fixed near-field cells;
 //! - [`hip`]: HIP's scaling of a geometric costmap and its phi-weighted sum
-//!   with a learned cost.
+//!   with a learned cost;
+//! - [`fusion_stage`]: the stage that runs all of it per input (its binary is
+//!   only the wiring), with `farsight_stage::CameraModels` keeping each
+//!   near-field camera's newest model.
 //!
 //! ```
 //! use farsight_costmap_fusion::{kalman::FarFieldConfig, map::FusionMap, swath::PolarGeometry};
@@ -27,6 +30,7 @@
 //! assert!(c < 0.5, "{c}");
 //! ```
 
+pub mod fusion_stage;
 pub mod grid;
 pub mod hip;
 pub mod kalman;

@@ -170,21 +170,15 @@ pub fn class_map_cells(
     rules: &NearFieldConfig,
     cost_of: impl Fn(u8) -> f32,
 ) -> Vec<FixedCell> {
-    let h = camera.mount.height_m();
     let mut cells: HashMap<(i64, i64), f32> = HashMap::new();
     for i in pixels(table.width, table.height, rules.pixel_stride.max(1)) {
         let Some(&class) = class_ids.get(i) else {
             continue;
         };
         let ray = camera.mount.robot_from_optical * table.ray(i);
-        if ray.z >= -1e-6 || h <= 0.0 {
+        let Some((x, y)) = camera.mount.ground_point_m(&ray) else {
             continue; // at or above the horizon: never meets the ground
-        }
-        let t = h / -ray.z;
-        let (x, y) = (
-            camera.mount.translation_m.x + t * ray.x,
-            camera.mount.translation_m.y + t * ray.y,
-        );
+        };
         if x.hypot(y) > rules.range_m {
             continue;
         }

@@ -10,6 +10,12 @@
 //! publish_rate_hz = 2.0          # costmap/fused, costmap/far_field, costmap/near_field
 //! clock = "wall"                 # "stamps": publish once per input message instead of
 //!                                # at publish_rate_hz (lock-step simulation, replays)
+//! answer_far_field = false       # with "stamps": publish once per far field (bins/polar),
+//!                                # the frame's near field (in first) folded in; near
+//!                                # fields alone update the map without publishing it.
+//!                                # Which of the two reaches the stage first is the
+//!                                # scheduler's choice, so publishing on each gave the
+//!                                # planner a different first map per run
 //! input_deadline_s = 1.0         # on capture time: an older far field is left out of
 //!                                # costmap/fused (FITAM with no far field); the pose and
 //!                                # the near field (any one of its sources; the far field
@@ -56,6 +62,7 @@ pub struct FusionStageConfig {
     pub clock: farsight_stage::ClockSource,
     pub health_rate_hz: f64,
     pub input_deadline_s: f64,
+    pub answer_far_field: bool,
     pub near_field: NearFieldConfig,
     pub far_field: FarFieldConfig,
 }
@@ -72,6 +79,7 @@ impl Default for FusionStageConfig {
             clock: Default::default(),
             health_rate_hz: 1.0,
             input_deadline_s: farsight_stage::inputs::DEFAULT_INPUT_DEADLINE_S,
+            answer_far_field: false,
             near_field: NearFieldConfig::default(),
             far_field: FarFieldConfig::default(),
         }
@@ -109,6 +117,14 @@ impl Validate for FusionStageConfig {
             farsight_interfaces::topics::validate_name(c)
                 .map_err(|e| ConfigError::invalid("local_costmaps", c, e.why))?;
         }
+        if self.answer_far_field {
+            ConfigError::check(
+                self.use_far_field && self.clock == farsight_stage::ClockSource::Stamps,
+                "answer_far_field",
+                true,
+                "false unless use_far_field = true and clock = \"stamps\"",
+            )?;
+        }
         self.near_field.check_rules()?;
         self.far_field.check_rules()
     }
@@ -123,7 +139,8 @@ impl farsight_stage::DeclaresTopics for FusionStageConfig {
             self.local_costmaps.len() + nf.depth_cameras.len() + nf.class_map_cameras.len();
         if self.use_far_field {
             // The far field alone drives the map only when nothing near does.
-            let need = if near_sources == 0 {
+            // Answering the far field: without one, no map goes out.
+            let need = if near_sources == 0 || self.answer_far_field {
                 Need::Required
             } else {
                 Need::Optional

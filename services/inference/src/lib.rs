@@ -11,11 +11,13 @@
 //! - [`normals`]: depth surface normals with the paper's clean-up.
 //!
 //! The library is plain functions over frames; `farsight-inference` (the
-//! stage) and `farsight infer` (offline) both call [`Perception`] through
-//! [`Backend::run`], so a model checked offline behaves the same on the robot.
+//! stage, [`inference_stage::InferenceStage`]) and `farsight infer`
+//! (offline) both call [`Perception`] through [`Backend::run`], so a model
+//! checked offline behaves the same on the robot.
 
 pub mod class_table;
 pub mod hsv;
+pub mod inference_stage;
 pub mod model_config;
 pub mod normals;
 pub mod onnx;

@@ -103,6 +103,9 @@ pub struct OnnxModel {
     config: ModelConfig,
     pre: Option<Preprocessor>,
     input: Vec<f32>,
+    /// The model's own shape of each configured output (-1 = dynamic), in
+    /// the config's order: the stage sizes its output buffers from them.
+    output_shapes: Vec<Vec<i64>>,
 }
 
 fn float_tensor_shape<'a>(
@@ -257,6 +260,7 @@ impl OnnxModel {
                 ),
             });
         }
+        let mut output_shapes = Vec::with_capacity(config.outputs.len());
         for spec in &config.outputs {
             let out = session
                 .outputs()
@@ -272,7 +276,9 @@ impl OnnxModel {
                         .map(|o| o.name().to_string())
                         .collect(),
                 })?;
-            check_output(spec, float_tensor_shape("output", out.name(), out.dtype())?)?;
+            let shape = float_tensor_shape("output", out.name(), out.dtype())?;
+            check_output(spec, shape)?;
+            output_shapes.push(shape.to_vec());
         }
         let len = want.iter().product::<i64>() as usize;
         Ok(Self {
@@ -280,11 +286,18 @@ impl OnnxModel {
             config: config.clone(),
             pre: None,
             input: vec![0.0; len],
+            output_shapes,
         })
     }
 
     pub fn config(&self) -> &ModelConfig {
         &self.config
+    }
+
+    /// The model's shape of each configured output, as the model declares
+    /// it (-1 for a dynamic dimension), in the order of `config().outputs`.
+    pub fn output_shapes(&self) -> &[Vec<i64>] {
+        &self.output_shapes
     }
 
     /// Runs one frame and hands each configured output's spec, shape and values

@@ -7,6 +7,8 @@
 //! class_table = ""               # onnx: overrides the model config's class table
 //! class_table_poll_s = 1.0       # how often the class table file is checked for edits
 //! health_rate_hz = 1.0
+//! max_frame_px = 2073600         # hsv, normals: the largest camera frame (pixels,
+//!                                # 1920 x 1080) whose navigability image can go out
 //!
 //! [[hsv.ranges]]                 # hsv: see farsight_inference::hsv
 //! hue_deg = [20.0, 50.0]
@@ -36,6 +38,12 @@ pub struct InferenceConfig {
     pub class_table: String,
     pub class_table_poll_s: f64,
     pub health_rate_hz: f64,
+    /// The hsv and normals backends' output is as large as the camera frame,
+    /// which is not known at start, and an output's shared memory is
+    /// allocated at start: this many pixels at most (an onnx model's output
+    /// size comes from the model). A larger frame is dropped and counted,
+    /// naming this key.
+    pub max_frame_px: u64,
     pub hsv: HsvConfig,
     pub normals: NormalsConfig,
 }
@@ -56,6 +64,7 @@ impl Default for InferenceConfig {
             class_table: String::new(),
             class_table_poll_s: 1.0,
             health_rate_hz: 1.0,
+            max_frame_px: 1920 * 1080,
             hsv: HsvConfig::default(),
             normals: NormalsConfig::default(),
         }
@@ -70,6 +79,12 @@ impl Validate for InferenceConfig {
             Range::above_to(0.0, 3600.0).unit("s"),
         )
         .key("health_rate_hz", self.health_rate_hz, RATE_HZ)
+        // Up to the largest image farsight decodes (8192 x 8192).
+        .key(
+            "max_frame_px",
+            self.max_frame_px,
+            Range::between(1.0, 8192.0 * 8192.0).unit("px"),
+        )
         .nested("normals", &self.normals);
         for (i, range) in self.hsv.ranges.iter().enumerate() {
             r.nested(&format!("hsv.ranges[{i}]"), range);

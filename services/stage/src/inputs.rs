@@ -158,8 +158,15 @@ impl StageInputs {
     /// capture time consumed (0 before any).
     pub fn now_ns(&self, clock: crate::ClockSource) -> u64 {
         use farsight_interfaces::clock::{Clock, WallClock};
+        self.now_at(clock, WallClock.now_ns())
+    }
+
+    /// The stage's "now" given the runner's wall time (a step's
+    /// [`crate::Step::wall_ns`]: the system clock in a process, the
+    /// simulated clock in the in-process executor).
+    pub fn now_at(&self, clock: crate::ClockSource, wall_ns: u64) -> u64 {
         match clock {
-            crate::ClockSource::Wall => WallClock.now_ns(),
+            crate::ClockSource::Wall => wall_ns,
             crate::ClockSource::Stamps => self.newest_capture_ns().unwrap_or(0),
         }
     }

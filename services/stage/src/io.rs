@@ -14,6 +14,11 @@ pub struct Read {
     /// Required: without a writer the stage never produces output.
     /// Optional: the stage works without it (degraded or with a feature off).
     pub need: Need,
+    /// Read from the topic's queue of this depth, not its latest value: a
+    /// reader that must not lose messages (the recorder). The transport
+    /// gives every publisher of the topic a queue
+    /// (`farsight_interfaces::transport::ipc`, `FARSIGHT_QUEUES`).
+    pub queue_depth: Option<usize>,
 }
 
 /// The topics a stage instance reads and writes.
@@ -39,7 +44,25 @@ impl Io {
         match self.reads.iter_mut().find(|r| r.topic == topic) {
             Some(r) if need == Need::Required => r.need = Need::Required,
             Some(_) => {}
-            None => self.reads.push(Read { topic, need }),
+            None => self.reads.push(Read {
+                topic,
+                need,
+                queue_depth: None,
+            }),
+        }
+        self
+    }
+
+    /// An optional read from the topic's queue, `depth` messages deep.
+    pub fn read_queued(&mut self, topic: impl Into<String>, depth: usize) -> &mut Self {
+        let topic = topic.into();
+        match self.reads.iter_mut().find(|r| r.topic == topic) {
+            Some(r) => r.queue_depth = Some(r.queue_depth.unwrap_or(0).max(depth)),
+            None => self.reads.push(Read {
+                topic,
+                need: Need::Optional,
+                queue_depth: Some(depth),
+            }),
         }
         self
     }
@@ -91,7 +114,8 @@ mod tests {
             io.reads,
             vec![Read {
                 topic: "camera/a/info".into(),
-                need: Need::Required
+                need: Need::Required,
+                queue_depth: None,
             }]
         );
         assert_eq!(io.writes, vec!["health/fusion", "costmap/fused"]);

@@ -45,14 +45,19 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod camera_models;
+pub mod executor;
 pub mod inputs;
 pub mod io;
 pub mod ranges;
+pub mod runtime;
 pub mod watchdog;
 
+pub use camera_models::CameraModels;
 pub use inputs::{Freshness, InputId, Need, StageInputs};
 pub use io::{DeclaresTopics, Io};
 pub use ranges::{Range, Ranges};
+pub use runtime::{Inbox, Outbox, Ports, Stage, StageEnv, StageKind, Step, Wake};
 
 use farsight_interfaces::fixed::FixedStr;
 use farsight_interfaces::msg::{HealthState, StageHealth, Stamp};
@@ -374,10 +379,18 @@ impl StageArgs {
 /// ONNX Runtime at `warn`: ORT logs every arena allocation at info), text
 /// or JSON.
 pub fn init_tracing(format: LogFormat) {
+    init_tracing_with(
+        format,
+        "info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn,ort=warn",
+    );
+}
+
+/// [`init_tracing`] with another filter where `RUST_LOG` is unset (a tool
+/// that runs stages in its own process, quieter than a stage).
+pub fn init_tracing_with(format: LogFormat, default_filter: &str) {
     use tracing_subscriber::EnvFilter;
-    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-        EnvFilter::new("info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn,ort=warn")
-    });
+    let filter =
+        EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(default_filter));
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr);
@@ -409,35 +422,26 @@ pub fn announce_ready(stage: &str) {
     let _ = out.flush();
 }
 
-/// A stage's health report, published on `health/<stage>` at a fixed rate.
-pub struct Health {
-    publisher: Publisher<StageHealth>,
+/// A stage's health as plain data: its state and reason, and the counts of
+/// inputs, outputs and drops. A stage's step updates it; whoever runs the
+/// stage ([`Health`] in a process, the in-process executor) sends it.
+#[derive(Debug, Clone)]
+pub struct HealthReport {
     msg: StageHealth,
-    period_ns: u64,
-    last_sent_ns: Option<u64>,
-    seq: u64,
-    watchdog: watchdog::Watchdog,
     reason_logged: Option<std::time::Instant>,
 }
 
-impl Health {
-    pub fn new(bus: &Bus, stage: &str, rate_hz: f64) -> Result<Self, TransportError> {
-        let publisher = bus.publisher(&topics::health(stage))?;
-        let msg = StageHealth {
-            stage: FixedStr::truncated(stage),
-            state: HealthState::STARTING,
-            pid: std::process::id(),
-            ..Default::default()
-        };
-        Ok(Self {
-            publisher,
-            msg,
-            period_ns: (1e9 / rate_hz.max(0.01)) as u64,
-            last_sent_ns: None,
-            seq: 0,
-            watchdog: watchdog::Watchdog::from_env(),
+impl HealthReport {
+    pub fn new(instance: &str) -> Self {
+        Self {
+            msg: StageHealth {
+                stage: FixedStr::truncated(instance),
+                state: HealthState::STARTING,
+                pid: std::process::id(),
+                ..Default::default()
+            },
             reason_logged: None,
-        })
+        }
     }
 
     /// Sets the state; a change of state is logged and published at the next
@@ -458,9 +462,6 @@ impl Health {
                 tracing::warn!(%state, reason, "health");
             }
             self.reason_logged = Some(std::time::Instant::now());
-        }
-        if state_changed {
-            self.last_sent_ns = None;
         }
         self.msg.state = state;
         self.msg.reason = FixedStr::truncated(reason);
@@ -496,28 +497,75 @@ impl Health {
     pub fn report(&self) -> &StageHealth {
         &self.msg
     }
+}
+
+/// A stage's [`HealthReport`], published on `health/<instance>` at a fixed
+/// rate and at once on a change of state; its tick pings systemd's watchdog.
+pub struct Health {
+    publisher: Publisher<StageHealth>,
+    report: HealthReport,
+    period_ns: u64,
+    last_sent_ns: Option<u64>,
+    sent_state: Option<HealthState>,
+    watchdog: watchdog::Watchdog,
+}
+
+impl std::ops::Deref for Health {
+    type Target = HealthReport;
+    fn deref(&self) -> &HealthReport {
+        &self.report
+    }
+}
+
+impl std::ops::DerefMut for Health {
+    fn deref_mut(&mut self) -> &mut HealthReport {
+        &mut self.report
+    }
+}
+
+impl Health {
+    pub fn new(bus: &Bus, stage: &str, rate_hz: f64) -> Result<Self, TransportError> {
+        let publisher = bus.publisher(&topics::health(stage))?;
+        Ok(Self {
+            publisher,
+            report: HealthReport::new(stage),
+            period_ns: (1e9 / rate_hz.max(0.01)) as u64,
+            last_sent_ns: None,
+            sent_state: None,
+            watchdog: watchdog::Watchdog::from_env(),
+        })
+    }
 
     /// Publishes if the period has passed since the last report (or the state
     /// changed), and pings systemd's watchdog: call it from the loop thread on
     /// every tick, so only a loop that keeps turning keeps the stage alive.
     pub fn tick(&mut self, now_ns: u64) {
         self.watchdog.pet();
-        let due = match self.last_sent_ns {
-            None => true,
-            Some(t) => now_ns.saturating_sub(t) >= self.period_ns,
-        };
+        let due = self.sent_state != Some(self.report.state())
+            || match self.last_sent_ns {
+                None => true,
+                Some(t) => now_ns.saturating_sub(t) >= self.period_ns,
+            };
         if due {
             self.send(now_ns);
         }
     }
 
+    /// Publishes the report now, whatever the period: an answer someone
+    /// waits for (the recorder's report of the frame it has taken in, which a
+    /// lock-step simulator waits for before its next frame).
+    pub fn publish_now(&mut self, now_ns: u64) {
+        self.watchdog.pet();
+        self.send(now_ns);
+    }
+
     fn send(&mut self, now_ns: u64) {
-        self.seq += 1;
-        self.msg.stamp.capture_time_ns = now_ns;
-        if let Err(e) = self.publisher.publish(&self.msg) {
+        self.report.msg.stamp.capture_time_ns = now_ns;
+        if let Err(e) = self.publisher.publish(&self.report.msg) {
             tracing::warn!("health publish failed: {e}");
         }
         self.last_sent_ns = Some(now_ns);
+        self.sent_state = Some(self.report.state());
     }
 
     /// Publishes a final `stopping` report (on SIGTERM).

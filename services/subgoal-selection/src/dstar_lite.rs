@@ -72,6 +72,11 @@ impl CostGrid {
         !c.is_finite() || c < 0.0
     }
 
+    /// Whether cell `(x, y)` cannot be entered.
+    pub fn is_blocked(&self, x: usize, y: usize) -> bool {
+        Self::blocked(self.get(x, y))
+    }
+
     /// Cost of stepping from `a` into its neighbour `b` (seconds). Only the
     /// entered cell counts, as FITAM's code: a robot standing in a cell the
     /// map now calls lethal (an inflated margin, a late detection) can still
@@ -188,6 +193,113 @@ pub fn astar(
     None
 }
 
+/// D* Lite's priority queue: each vertex at most once, ordered by its key
+/// and then its index, with every vertex's place in the heap kept so that
+/// re-keying or removing it happens in place. (A heap that leaves stale
+/// entries behind grows to several entries per vertex when a far-field
+/// frame changes tens of thousands of cells; popping those was a fifth of
+/// the navigation benchmark's time.) The vertex on top is the same one a
+/// lazy heap would give: the order is total.
+#[derive(Debug, Default)]
+struct VertexQueue {
+    /// A binary min-heap. Vertex indices fit in u32: the planner's grid
+    /// side is at most 20,000 cells (`max_side_cells`).
+    heap: Vec<(Key, u32)>,
+    /// Where each vertex sits in `heap`; [`Self::ABSENT`] when not queued.
+    place: Vec<u32>,
+}
+
+impl VertexQueue {
+    const ABSENT: u32 = u32::MAX;
+
+    fn new(vertices: usize) -> Self {
+        Self {
+            heap: Vec::new(),
+            place: vec![Self::ABSENT; vertices],
+        }
+    }
+
+    fn before(a: &(Key, u32), b: &(Key, u32)) -> bool {
+        a.0.cmp(&b.0).then(a.1.cmp(&b.1)) == Ordering::Less
+    }
+
+    fn top(&self) -> Option<(Key, usize)> {
+        self.heap.first().map(|&(k, v)| (k, v as usize))
+    }
+
+    /// Queues `v` with key `k`, or re-keys it if queued.
+    fn set(&mut self, v: usize, k: Key) {
+        match self.place[v] {
+            Self::ABSENT => {
+                self.heap.push((k, v as u32));
+                self.place[v] = (self.heap.len() - 1) as u32;
+                self.sift_up(self.heap.len() - 1);
+            }
+            p => {
+                let p = p as usize;
+                let raised = Self::before(&self.heap[p], &(k, v as u32));
+                self.heap[p].0 = k;
+                if raised {
+                    self.sift_down(p);
+                } else {
+                    self.sift_up(p);
+                }
+            }
+        }
+    }
+
+    fn remove(&mut self, v: usize) {
+        let p = self.place[v];
+        if p == Self::ABSENT {
+            return;
+        }
+        let (p, last) = (p as usize, self.heap.len() - 1);
+        self.place[v] = Self::ABSENT;
+        self.heap.swap(p, last);
+        self.heap.pop();
+        if p < self.heap.len() {
+            self.place[self.heap[p].1 as usize] = p as u32;
+            self.sift_down(p);
+            self.sift_up(p);
+        }
+    }
+
+    fn swap(&mut self, a: usize, b: usize) {
+        self.heap.swap(a, b);
+        self.place[self.heap[a].1 as usize] = a as u32;
+        self.place[self.heap[b].1 as usize] = b as u32;
+    }
+
+    fn sift_up(&mut self, mut i: usize) {
+        while i > 0 {
+            let parent = (i - 1) / 2;
+            if !Self::before(&self.heap[i], &self.heap[parent]) {
+                break;
+            }
+            self.swap(i, parent);
+            i = parent;
+        }
+    }
+
+    fn sift_down(&mut self, mut i: usize) {
+        loop {
+            let (l, r) = (2 * i + 1, 2 * i + 2);
+            let mut least = i;
+            if l < self.heap.len() && Self::before(&self.heap[l], &self.heap[least]) {
+                least = l;
+            }
+            if r < self.heap.len() && Self::before(&self.heap[r], &self.heap[least]) {
+                least = r;
+            }
+            if least == i {
+                return;
+            }
+            self.swap(i, least);
+            i = least;
+        }
+    }
+}
+
 /// An incremental planner over a [`CostGrid`].
 pub struct DStarLite {
     grid: CostGrid,
@@ -198,14 +310,18 @@ pub struct DStarLite {
     km: f64,
     g: Vec<f64>,
     rhs: Vec<f64>,
-    /// The key a vertex is queued with; `None` when it is not in the queue.
-    queued: Vec<Option<Key>>,
-    open: BinaryHeap<Entry>,
+    open: VertexQueue,
+    /// Vertices waiting in [`Self::set_costs`] for their update, and
+    /// which are (so each is updated once).
+    to_update: Vec<usize>,
+    dirty: Vec<bool>,
     /// Vertices expanded over the planner's life (to show the repair is cheap).
     pub expanded: usize,
 }
 
 impl DStarLite {
+    /// A planner over `grid` from `start` to `goal`. Panics on a grid of
+    /// 2^32 - 1 cells or more (the planner's config keeps grids far below).
     pub fn new(
         grid: CostGrid,
         start: (usize, usize),
@@ -213,6 +329,14 @@ impl DStarLite {
         min_cost_s_per_m: f64,
     ) -> Self {
         let n = grid.width * grid.height;
+        // The queue names vertices in u32 (WorldPlanner's grids are at most
+        // 20,000 x 20,000 cells; g and rhs alone would need 64 GB past this).
+        assert!(
+            n < VertexQueue::ABSENT as usize,
+            "a {} x {} grid has more cells than D* Lite's queue can name",
+            grid.width,
+            grid.height
+        );
         let scale = min_cost_s_per_m * grid.resolution_m;
         let mut p = Self {
             grid,
@@ -223,8 +347,9 @@ impl DStarLite {
             km: 0.0,
             g: vec![f64::INFINITY; n],
             rhs: vec![f64::INFINITY; n],
-            queued: vec![None; n],
-            open: BinaryHeap::new(),
+            open: VertexQueue::new(n),
+            to_update: Vec::new(),
+            dirty: vec![false; n],
             expanded: 0,
         };
         let gi = p.idx(goal);
@@ -261,19 +386,11 @@ impl DStarLite {
     }
 
     fn push(&mut self, i: usize, k: Key) {
-        self.queued[i] = Some(k);
-        self.open.push(Entry(k, i));
+        self.open.set(i, k);
     }
 
-    /// The smallest live entry of the queue (stale ones are dropped).
-    fn top(&mut self) -> Option<(Key, usize)> {
-        while let Some(Entry(k, i)) = self.open.peek() {
-            if self.queued[*i] == Some(*k) {
-                return Some((*k, *i));
-            }
-            self.open.pop();
-        }
-        None
+    fn top(&self) -> Option<(Key, usize)> {
+        self.open.top()
     }
 
     /// rhs(u) = min over successors s of c(u, s) + g(s).
@@ -299,7 +416,7 @@ impl DStarLite {
             let k = self.key(u);
             self.push(ui, k);
         } else {
-            self.queued[ui] = None;
+            self.open.remove(ui);
         }
     }
 
@@ -323,7 +440,7 @@ impl DStarLite {
                 // u got cheaper: a predecessor's rhs can only drop to the
                 // way through u (the optimised version's O(1) update).
                 self.g[ui] = self.rhs[ui];
-                self.queued[ui] = None;
+                self.open.remove(ui);
                 let (around, n) = self.grid.neighbour_array(u);
                 for &s in &around[..n] {
                     let si = self.idx(s);
@@ -370,22 +487,47 @@ impl DStarLite {
     /// so only its neighbours (and itself, whose out-edges may be blocked)
     /// are updated. Returns whether anything changed.
     pub fn set_cost(&mut self, x: usize, y: usize, cost_s_per_m: f32) -> bool {
-        let old = self.grid.get(x, y);
-        if old == cost_s_per_m || (old.is_nan() && cost_s_per_m.is_nan()) {
-            return false;
+        self.set_costs([(x, y, cost_s_per_m)]) == 1
+    }
+
+    /// Several cells' new costs at once: every cost is changed first, then
+    /// each vertex next to a changed cell is updated once (D* Lite's "for
+    /// all changed edges ... UpdateVertex"), where one call per cell would
+    /// update a far-field frame's tens of thousands of cells nine times
+    /// each. The same queue results either way. Returns how many cells
+    /// changed.
+    pub fn set_costs(&mut self, cells: impl IntoIterator<Item = (usize, usize, f32)>) -> usize {
+        let mut changed = 0;
+        for (x, y, cost_s_per_m) in cells {
+            let old = self.grid.get(x, y);
+            if old == cost_s_per_m || (old.is_nan() && cost_s_per_m.is_nan()) {
+                continue;
+            }
+            if changed == 0 && self.last_start != self.start {
+                // The heuristic's origin moved since the last change: raise
+                // every queued key by that much instead of re-keying the queue.
+                self.km += octile(self.last_start, self.start, self.scale);
+                self.last_start = self.start;
+            }
+            changed += 1;
+            self.grid.set(x, y, cost_s_per_m);
+            let (around, n) = self.grid.neighbour_array((x, y));
+            for &p in around[..n].iter().chain([&(x, y)]) {
+                let i = self.idx(p);
+                if !self.dirty[i] {
+                    self.dirty[i] = true;
+                    self.to_update.push(i);
+                }
+            }
         }
-        if self.last_start != self.start {
-            // The heuristic's origin moved since the last change: raise every
-            // queued key by that much instead of re-keying the queue.
-            self.km += octile(self.last_start, self.start, self.scale);
-            self.last_start = self.start;
+        let mut to_update = std::mem::take(&mut self.to_update);
+        for &i in &to_update {
+            self.dirty[i] = false;
+            self.update_vertex(self.cell(i));
         }
-        self.grid.set(x, y, cost_s_per_m);
-        let (around, n) = self.grid.neighbour_array((x, y));
-        for &p in around[..n].iter().chain([&(x, y)]) {
-            self.update_vertex(p);
-        }
-        true
+        to_update.clear();
+        self.to_update = to_update;
+        changed
     }
 
     /// The current best path from the start to the goal, following the
@@ -444,6 +586,81 @@ mod tests {
             }
         }
         g
+    }
+
+    #[test]
+    fn the_vertex_queue_gives_what_a_sorted_set_gives_under_any_mix_of_operations() {
+        use std::collections::BTreeMap;
+        let mut rng = Lcg(7);
+        let mut q = VertexQueue::new(64);
+        let mut want: BTreeMap<usize, Key> = BTreeMap::new();
+        let least = |w: &BTreeMap<usize, Key>| {
+            w.iter()
+                .map(|(&v, &k)| (k, v))
+                .min_by(|a, b| a.0.cmp(&b.0).then(a.1.cmp(&b.1)))
+        };
+        for step in 0..5000 {
+            let v = (rng.next() * 64.0) as usize;
+            // Few distinct keys, so ties are common and the index decides.
+            let k = Key((rng.next() * 8.0).floor(), (rng.next() * 3.0).floor());
+            match (rng.next() * 4.0) as usize {
+                0 => {
+                    q.remove(v);
+                    want.remove(&v);
+                }
+                1 => {
+                    if let Some((_, top)) = q.top() {
+                        q.remove(top);
+                        want.remove(&top);
+                    }
+                }
+                _ => {
+                    q.set(v, k);
+                    want.insert(v, k);
+                }
+            }
+            assert_eq!(q.top(), least(&want), "step {step}");
+            assert_eq!(q.heap.len(), want.len(), "one entry per vertex");
+        }
+    }
+
+    #[test]
+    fn changing_cells_together_leaves_the_planner_as_changing_them_one_by_one() {
+        let mut rng = Lcg(11);
+        for _ in 0..20 {
+            let grid = random_grid(&mut rng, 30, 20);
+            let (start, goal) = ((1, 1), (28, 18));
+            let mut one = DStarLite::new(grid.clone(), start, goal, 0.2);
+            let mut all = DStarLite::new(grid, start, goal, 0.2);
+            one.compute();
+            all.compute();
+            for round in 0..3 {
+                let moved = (2 + round, 1 + round);
+                one.move_start(moved);
+                all.move_start(moved);
+                // A block of changes, some cells twice, some unchanged.
+                let changes: Vec<(usize, usize, f32)> = (0..120)
+                    .map(|_| {
+                        let (x, y) = ((rng.next() * 30.0) as usize, (rng.next() * 20.0) as usize);
+                        let c = if rng.next() < 0.3 {
+                            f32::INFINITY
+                        } else {
+                            (0.2 + 3.0 * rng.next()) as f32
+                        };
+                        (x, y, c)
+                    })
+                    .collect();
+                let n_one = changes
+                    .iter()
+                    .filter(|&&(x, y, c)| one.set_cost(x, y, c))
+                    .count();
+                assert_eq!(all.set_costs(changes.iter().copied()), n_one);
+                assert_eq!(one.compute(), all.compute());
+                assert_eq!(one.path(), all.path());
+                assert_eq!((&one.g, &one.rhs, one.km), (&all.g, &all.rhs, all.km));
+                assert_eq!(one.open.heap.len(), all.open.heap.len());
+            }
+        }
     }
 
     #[test]

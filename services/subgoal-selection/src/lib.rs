@@ -9,8 +9,11 @@
 //! - [`dstar_lite`]: D* Lite (and A*) on the fused FITAM costmap, and
 //!   [`planner`], its world-fixed grid for the stage.
 //! - [`hip`]: HIP's trajectory library scored by eq. (1).
+//! - [`subgoal_stage`]: the stage itself ([`subgoal_stage::SubgoalStage`]),
+//!   one step per input over plain messages, on the stage runtime.
 //!
-//! Plain functions over plain data; the stage binary wires them to the bus.
+//! Plain functions over plain data; the stage runtime wires the stage to
+//! the bus.
 
 pub mod dstar_lite;
 pub mod hip;
@@ -18,3 +21,4 @@ pub mod lrn_head;
 pub mod planner;
 pub mod povnav;
 pub mod stage;
+pub mod subgoal_stage;

@@ -215,17 +215,42 @@ impl WorldPlanner {
                 }
             }
         }
-        let mut changed = 0;
-        for (x, y) in touched {
+        let (base, lethal_near) = (&self.base, &self.lethal_near);
+        self.dstar.set_costs(touched.into_iter().map(|(x, y)| {
             let i = y * w + x;
-            let effective = if self.lethal_near[i] > 0 {
+            let effective = if lethal_near[i] > 0 {
                 f32::INFINITY
             } else {
-                self.base[i]
+                base[i]
             };
-            changed += self.dstar.set_cost(x, y, effective) as usize;
+            (x, y, effective)
+        }))
+    }
+
+    /// A goal in a blocked cell (lethal, or within the inflation of one) has
+    /// no path. For a goal that is only a direction (a guide's subgoal a
+    /// fixed distance out along its heading) the place to head for is the
+    /// farthest free cell on the straight line from `from_m` to the goal,
+    /// before the first blocked one: that point, or `None` when the goal's
+    /// cell is free (or the line is blocked from the start).
+    pub fn goal_pulled_back_from_blocked(&self, from_m: [f64; 2]) -> Option<[f64; 2]> {
+        let grid = self.dstar.grid();
+        let blocked = |p: [f64; 2]| self.cell(p).is_none_or(|(x, y)| grid.is_blocked(x, y));
+        if !blocked(self.goal_m) {
+            return None;
         }
-        changed
+        let (dx, dy) = (self.goal_m[0] - from_m[0], self.goal_m[1] - from_m[1]);
+        let n = (dx.hypot(dy) / (0.5 * self.resolution_m)).ceil() as usize;
+        let mut free = None;
+        for i in 1..=n {
+            let t = i as f64 / n as f64;
+            let p = [from_m[0] + t * dx, from_m[1] + t * dy];
+            if blocked(p) {
+                break;
+            }
+            free = Some(p);
+        }
+        free
     }
 
     /// Plans from the robot at `robot_m`: the world path (cell centres, the
@@ -311,6 +336,50 @@ mod tests {
             p.plan([500.0, 0.0]),
             Err(PlanError::OutsideGrid(500.0, 0.0))
         );
+    }
+
+    #[test]
+    fn a_goal_inside_an_obstacle_is_pulled_back_to_the_free_ground_before_it() {
+        let cfg = WorldPlannerConfig {
+            margin_m: 10.0,
+            inflation_radius_m: 1.0,
+            ..Default::default()
+        };
+        // A lethal block x = 8..=12 across y = -2..=2; the goal in its middle.
+        let header = CostmapHeader {
+            stamp: Stamp::default(),
+            layer: CostmapLayer::FUSED,
+            width: 5,
+            height: 5,
+            resolution_m: 1.0,
+            x_min_m: 7.5,
+            y_max_m: 2.5,
+        };
+        let cells = vec![
+            CostCell {
+                cost_s_per_m: f32::INFINITY,
+                variance: 0.0,
+            };
+            25
+        ];
+        let mut p = WorldPlanner::new([0.0, 0.0], [10.0, 0.0], &cfg);
+        assert_eq!(
+            p.goal_pulled_back_from_blocked([0.0, 0.0]),
+            None,
+            "nothing seen yet"
+        );
+        p.apply_costmap(&header, &cells);
+        assert_eq!(p.plan([0.0, 0.0]), Err(PlanError::NoPath));
+        // The block starts at x = 8, its inflation at x = 7: the last free
+        // point on the line is short of 6.5 m (the cell boundary).
+        let g = p.goal_pulled_back_from_blocked([0.0, 0.0]).unwrap();
+        assert!(g[1] == 0.0 && g[0] > 5.5 && g[0] < 6.5, "{g:?}");
+        let mut q = WorldPlanner::new([0.0, 0.0], g, &cfg);
+        q.apply_costmap(&header, &cells);
+        assert!(q.plan([0.0, 0.0]).is_ok());
+        // A free goal stays where it is.
+        let free = WorldPlanner::new([0.0, 0.0], [5.0, 0.0], &cfg);
+        assert_eq!(free.goal_pulled_back_from_blocked([0.0, 0.0]), None);
     }
 
     #[test]

@@ -22,6 +22,12 @@
 //! path_max_range_m = 50.0        # povnav: robot-frame path points further out are dropped
 //!                                # (near the horizon line, ground projection is ill-conditioned)
 //! health_rate_hz = 1.0
+//! subgoal_topic = "nav/subgoal"  # where the subgoal goes: the servo follows nav/subgoal; a
+//!                                # guide for another instance writes nav/subgoal/<name>
+//! guide = ""                     # povnav, dstar_lite, hip: a nav/subgoal/<name> topic whose
+//!                                # subgoal (another method's, e.g. LRN's heading) is this
+//!                                # instance's goal in place of nav/goal; each frame is planned
+//!                                # once the guide's subgoal of the same frame is in
 //! # anchor_latitude_deg / anchor_longitude_deg: ENU origin for GPS goals
 //!
 //! [povnav]                       # see farsight_subgoal_selection::povnav::PovnavConfig
@@ -58,6 +64,8 @@ pub struct SubgoalStageConfig {
     pub input_deadline_s: f64,
     pub anchor_latitude_deg: Option<f64>,
     pub anchor_longitude_deg: Option<f64>,
+    pub subgoal_topic: String,
+    pub guide: String,
     pub povnav: PovnavConfig,
     pub lrn: LrnHeadConfig,
     pub planner: WorldPlannerConfig,
@@ -82,6 +90,8 @@ impl Default for SubgoalStageConfig {
             input_deadline_s: farsight_stage::inputs::DEFAULT_INPUT_DEADLINE_S,
             anchor_latitude_deg: None,
             anchor_longitude_deg: None,
+            subgoal_topic: topics::subgoal().name().to_string(),
+            guide: String::new(),
             povnav: PovnavConfig::default(),
             lrn: LrnHeadConfig::default(),
             planner: WorldPlannerConfig::default(),
@@ -145,7 +155,36 @@ impl Validate for SubgoalStageConfig {
         farsight_interfaces::topics::validate_name(&self.camera)
             .map_err(|e| ConfigError::invalid("camera", &self.camera, e.why))?;
         farsight_stage::check_anchor(self.anchor_latitude_deg, self.anchor_longitude_deg)?;
+        let subgoal_kind = Some(topics::TopicKind::Subgoal);
+        ConfigError::check(
+            topics::kind_of(&self.subgoal_topic) == subgoal_kind,
+            "subgoal_topic",
+            &self.subgoal_topic,
+            "nav/subgoal or nav/subgoal/<name>",
+        )?;
+        if !self.guide.is_empty() {
+            ConfigError::check(
+                topics::kind_of(&self.guide) == subgoal_kind && self.guide != self.subgoal_topic,
+                "guide",
+                &self.guide,
+                "a nav/subgoal/<name> topic other than subgoal_topic",
+            )?;
+            ConfigError::check(
+                self.follows_a_guide_kind(),
+                "guide",
+                &self.guide,
+                "empty for method = \"lrn\" or \"goal_heuristic\" (they steer by the goal; \
+                 a guide is for povnav, dstar_lite or hip)",
+            )?;
+        }
         self.povnav.check_rules()
+    }
+}
+
+impl SubgoalStageConfig {
+    /// Whether this method can follow a guide's subgoal as its goal.
+    fn follows_a_guide_kind(&self) -> bool {
+        ["povnav", "dstar_lite", "hip"].contains(&self.method.as_str())
     }
 }
 
@@ -153,10 +192,14 @@ impl farsight_stage::DeclaresTopics for SubgoalStageConfig {
     fn topics(&self, instance: &str, _: &std::path::Path) -> Result<Io, String> {
         let c = &self.camera;
         let mut io = Io::for_instance(instance);
-        // No goal, no subgoal: every method needs one.
+        // No goal (or guide), no subgoal: every method needs one.
+        let goal = match self.guide.as_str() {
+            "" => topics::goal().name().to_string(),
+            guide => guide.to_string(),
+        };
         io.read(topics::pose().name(), Need::Required)
-            .read(topics::goal().name(), Need::Required)
-            .write(topics::subgoal().name());
+            .read(goal, Need::Required)
+            .write(&self.subgoal_topic);
         match self.method.as_str() {
             "povnav" => {
                 io.read(topics::navigability(c).name(), Need::Required)

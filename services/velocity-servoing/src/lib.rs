@@ -28,6 +28,7 @@
 //! assert!(w > 0.0);
 //! ```
 
+pub mod servo_stage;
 pub mod stage;
 
 use farsight_interfaces::msg::{CommandReason, Path, PathFrame, Pose};

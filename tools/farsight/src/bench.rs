@@ -129,6 +129,10 @@ pub struct NavArgs {
     /// Methods to run (default: all).
     #[arg(long, value_delimiter = ',')]
     pub methods: Vec<String>,
+    /// Graph files to run instead of the shipped methods (a row per file,
+    /// named by its stem).
+    #[arg(long, value_delimiter = ',')]
+    pub graphs: Vec<std::path::PathBuf>,
     /// Simulated seconds per trial (road-forest's forest allows 0.5 m/s).
     #[arg(long, default_value_t = 600.0)]
     pub max_time_s: f64,
@@ -136,6 +140,9 @@ pub struct NavArgs {
     /// `farsight-sim run` writes `poses.csv`) into this folder.
     #[arg(long)]
     pub trace: Option<std::path::PathBuf>,
+    /// Print each method and the graph file it runs (tab-separated), run nothing.
+    #[arg(long)]
+    pub list: bool,
 }
 
 pub fn run(cmd: BenchCommand) -> Result<()> {
@@ -241,6 +248,7 @@ fn send_cell(kind: Kind, size: usize, count: usize) -> Result<(f64, f64, usize)>
             let settings = IpcSettings {
                 prefix: Some(tag.clone()),
                 root: None,
+                queues: None,
             };
             let bus = Bus::open_with("bench-sender", &settings)?;
             let publisher = bus.slice_publisher(&topic(), size)?;
@@ -376,6 +384,7 @@ fn receiver(a: ReceiverArgs) -> Result<()> {
             let settings = IpcSettings {
                 prefix: Some(a.endpoint.clone()),
                 root: None,
+                queues: None,
             };
             let bus = Bus::open_with("bench-receiver", &settings)?;
             let sub = bus.slice_subscriber(&topic())?;

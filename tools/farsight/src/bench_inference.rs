@@ -94,6 +94,9 @@ fn stage_fps(a: &InferenceArgs) -> Result<f64> {
     let prefix = format!("benchinf{}_", std::process::id());
     let frames = std::fs::canonicalize(&a.frames)?;
     let model = std::fs::canonicalize(&a.model_config)?;
+    // The ORFD camera model, one file for every ORFD config.
+    let camera_info = crate::graph::repo_file("tests/fixtures/orfd/front.yaml")?;
+    let camera_info = std::fs::canonicalize(camera_info)?;
     std::fs::write(
         dir.join("inference.toml"),
         format!(
@@ -104,8 +107,9 @@ fn stage_fps(a: &InferenceArgs) -> Result<f64> {
     std::fs::write(
         dir.join("ingest.toml"),
         format!(
-            "[[cameras]]\nfolder = {:?}\nrate_hz = 200.0\nloops = 0\n[cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\n",
-            frames.display().to_string()
+            "[[cameras]]\nfolder = {:?}\nrate_hz = 200.0\nloops = 0\n[cameras.model]\nname = \"front\"\ncamera_info = {:?}\n",
+            frames.display().to_string(),
+            camera_info.display().to_string()
         ),
     )?;
     let exe = std::env::current_exe()?;
@@ -130,6 +134,7 @@ fn stage_fps(a: &InferenceArgs) -> Result<f64> {
         &IpcSettings {
             prefix: Some(prefix.clone()),
             root: None,
+            queues: None,
         },
     )?;
     let nav = bus.slice_subscriber(&topics::navigability("front"))?;

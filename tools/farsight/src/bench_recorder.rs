@@ -1,5 +1,6 @@
 //! `farsight bench recorder`: what `farsight record` sustains writing
-//! 1280x720 RGB frames to disk. This process publishes the real ORFD camera
+//! 1280x720 RGB frames to disk, reading the camera topic's latest value or
+//! its queue (`--queue-depths`), and the shared memory each costs. This process publishes the real ORFD camera
 //! frames (cycled; `../shared/data/orfd`) at each target rate into shared
 //! memory while a `farsight record` child process records them; the table
 //! gives the frames it wrote and skipped, the bandwidth in and on disk, and
@@ -24,6 +25,10 @@ pub struct RecorderArgs {
     /// Target publish rates; 0 = as fast as the publisher can.
     #[arg(long, value_delimiter = ',', default_values_t = [15.0, 30.0, 0.0])]
     pub rates_hz: Vec<f64>,
+    /// Queue depths of the camera topic the recorder reads (0: its latest
+    /// value, no queue).
+    #[arg(long, value_delimiter = ',', default_values_t = [0, 16])]
+    pub queue_depths: Vec<usize>,
     /// Folder with the camera frames to publish.
     #[arg(long, default_value = "../shared/data/orfd/image_data")]
     pub frames: PathBuf,
@@ -73,9 +78,15 @@ pub fn run(a: RecorderArgs) -> Result<()> {
         "recorder: {W}x{H} RGB ORFD frames, {} s per cell, zstd level 1 and uncompressed (one run, this machine):\n",
         a.seconds
     );
-    println!("| target Hz | compression | published | written | skipped | written/s | MB/s in | MB/s on disk | recorder CPU |");
-    println!("|---|---|---|---|---|---|---|---|---|");
-    for &rate in &a.rates_hz {
+    println!("| target Hz | queue | shm per publisher MB | compression | published | written | skipped | written/s | MB/s in | MB/s on disk | recorder CPU |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    let cells = a
+        .rates_hz
+        .iter()
+        .flat_map(|&r| a.queue_depths.iter().map(move |&q| (r, q)));
+    for (rate, depth) in cells {
+        let queue = (depth > 0).then_some(depth);
+        let queues = queue.map(|d| format!("camera/bench/image={d}"));
         for zstd in [true, false] {
             let prefix = format!("benchrec{}_", std::process::id());
             let bus = Bus::open_with(
@@ -83,6 +94,7 @@ pub fn run(a: RecorderArgs) -> Result<()> {
                 &IpcSettings {
                     prefix: Some(prefix.clone()),
                     root: None,
+                    queues: queues.clone(),
                 },
             )?;
             let images =
@@ -98,6 +110,10 @@ pub fn run(a: RecorderArgs) -> Result<()> {
             let mut child = Command::new(std::env::current_exe()?)
                 .args(&args)
                 .env("FARSIGHT_IPC_PREFIX", &prefix)
+                .env(
+                    farsight_interfaces::transport::ipc::QUEUES_ENV,
+                    queues.as_deref().unwrap_or(""),
+                )
                 .stdout(Stdio::piped())
                 .stderr(Stdio::null())
                 .spawn()?;
@@ -128,12 +144,18 @@ pub fn run(a: RecorderArgs) -> Result<()> {
             let disk = std::fs::metadata(&file)?.len() as f64;
             let raw = written as f64 * (W * H * 3) as f64;
             println!(
-                "| {} | {} | {k} | {written} | {} | {:.1} | {:.0} | {:.0} | {:.0}% |",
+                "| {} | {} | {:.0} | {} | {k} | {written} | {} | {:.1} | {:.0} | {:.0} | {:.0}% |",
                 if rate > 0.0 {
                     format!("{rate:.0}")
                 } else {
                     "max".into()
                 },
+                queue.map_or("latest".to_string(), |d| d.to_string()),
+                farsight_interfaces::transport::ipc::publisher_shm_bytes(
+                    (W * H * 3) as usize,
+                    queue
+                ) as f64
+                    / 1e6,
                 if zstd { "zstd 1" } else { "none" },
                 k.saturating_sub(written),
                 written as f64 / wall,

@@ -1,14 +1,15 @@
 //! `farsight chaos`: motion safety under faults, measured. The simulator
-//! drives the FITAM graph in real time (every stage on the wall clock,
-//! camera frames stamped at capture, the servo behind the command mux, as
-//! deployed), while this process kills (SIGKILL, then a restart) and
-//! freezes (SIGSTOP, then SIGCONT) one random stage at a time, and watches
-//! every topic that moves the robot:
+//! drives the FITAM graph of `graphs/sim/chaos.toml` in real time (every
+//! stage on the wall clock, camera frames stamped at capture, the servo
+//! behind the command mux, as deployed), while this process kills (SIGKILL,
+//! then a restart) and freezes (SIGSTOP, then SIGCONT) one random stage at
+//! a time, and watches every topic that moves the robot:
 //!
 //! - **stale moving commands**: a moving command from the servo
 //!   (`cmd/autonomy`) whose oldest capture was older than the servo's
-//!   deadline when it was published; on `cmd/velocity` (the mux holds a
-//!   command for its TTL) older than deadline plus TTL. The publish time is
+//!   deadline (`subgoal_deadline_s` in the graph's servo config) when it was
+//!   published; on `cmd/velocity` (the mux holds a command for the servo's
+//!   `command_ttl_s`) older than deadline plus TTL. The publish time is
 //!   bounded by this process's polls (a message first seen at poll t was
 //!   published after the poll before), so a count is proven, never guessed;
 //! - **self-exits**: a stage that ended without being killed;
@@ -20,14 +21,17 @@
 //! - **distance made good** towards the goal, so a robot that never moves
 //!   cannot pass.
 //!
-//! Faults go round the stages in shuffled rounds, each a kill or a freeze at
-//! random, so a short run still faults every stage. The test command runs
-//! two rounds (`tests/chaos.rs`); the long run is
-//! `farsight chaos --faults 100`, which prints the table below and writes
-//! `summary.toml`. It exits non-zero when an invariant fails.
+//! Each node is started (and restarted) with the command `farsight run`
+//! would use for it (its inline config written to `<out>/<name>.toml`,
+//! relative paths resolving against the graph file's folder), its stderr
+//! appended to `<out>/<name>.log`. Faults go round the stages in shuffled
+//! rounds, each a kill or a freeze at random, so a short run still faults
+//! every stage. The test command runs two rounds (`tests/chaos.rs`); the
+//! long run is `farsight chaos --faults 100`, which prints the table below
+//! and writes `summary.toml`. It exits non-zero when an invariant fails.
 
 use crate::demo::Stage;
-use crate::sim_tuning;
+use crate::graph::{Graph, NodeSpec};
 use anyhow::{bail, Context, Result};
 use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::msg::{NavGoal, Pose, VelocityCommand};
@@ -35,6 +39,7 @@ use farsight_interfaces::topics::{self, Topic};
 use farsight_interfaces::transport::any::AnySubscriber;
 use farsight_interfaces::transport::ipc::{Bus, IpcSettings, Subscriber};
 use farsight_sim::rng::SplitMix64;
+use farsight_velocity_servoing::stage::ServoStageConfig;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -70,7 +75,10 @@ pub struct ChaosArgs {
     pub gap_s: f64,
 }
 
-/// The graph's stages in start order, with the topic that shows each is working.
+/// The graph chaos runs, relative to the repository root.
+const GRAPH: &str = "graphs/sim/chaos.toml";
+
+/// The graph's nodes in start order, with the topic that shows each is working.
 const STAGES: [(&str, &str); 6] = [
     ("inference", "perception/front/far_field"),
     ("bin-projection", "bins/polar"),
@@ -79,10 +87,6 @@ const STAGES: [(&str, &str); 6] = [
     ("velocity-servoing", "cmd/autonomy"),
     ("command-mux", "cmd/velocity"),
 ];
-
-/// The servo's stale-input deadline and command TTL in this graph.
-const SERVO_DEADLINE_S: f64 = 2.0;
-const COMMAND_TTL_S: f64 = 0.25;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Fault {
@@ -93,7 +97,7 @@ enum Fault {
 /// One stage process, restartable.
 struct StageProc {
     name: &'static str,
-    config: PathBuf,
+    spec: NodeSpec,
     child: Option<Stage>,
     output: AnySubscriber,
 }
@@ -135,6 +139,11 @@ pub struct ChaosReport {
     /// Episodes driven: the scenario starts again when the goal is reached.
     pub episodes: u32,
     pub wall_s: f64,
+    /// The servo's stale-input deadline and command TTL in the graph: a
+    /// moving command is stale on `cmd/autonomy` past the deadline, on
+    /// `cmd/velocity` past deadline plus TTL.
+    pub servo_deadline_s: f64,
+    pub command_ttl_s: f64,
 }
 
 /// How much nearer the goal the robot got in an episode.
@@ -226,9 +235,9 @@ impl ChaosReport {
             self.stale_moving_servo,
             self.stale_moving_mux,
             self.oldest_moving_servo_s,
-            SERVO_DEADLINE_S,
+            self.servo_deadline_s,
             self.oldest_moving_mux_s,
-            SERVO_DEADLINE_S + COMMAND_TTL_S,
+            self.servo_deadline_s + self.command_ttl_s,
             self.self_exits(),
             stop_median,
             stop_max,
@@ -299,51 +308,73 @@ fn median_max(v: &[f64]) -> (String, String) {
     )
 }
 
-/// The graph's configs: FITAM as the demo runs it, on the wall clock, the
-/// servo behind the mux.
-fn configs() -> Result<Vec<(&'static str, String)>> {
-    let model = sim_tuning::shipped_model(sim_tuning::FITAM_MODEL)?;
-    let quoted = toml::Value::String(model.canonicalize()?.display().to_string());
-    let mut fusion = sim_tuning::fitam_costmap_fusion();
-    fusion.clock = farsight_stage::ClockSource::Wall;
-    fusion.publish_rate_hz = 5.0;
-    let mut planner = sim_tuning::dstar_subgoal_selection();
-    planner.clock = farsight_stage::ClockSource::Wall;
-    planner.replan_rate_hz = 5.0;
-    let mut servo = sim_tuning::dstar_servo();
-    servo.clock = farsight_stage::ClockSource::Wall;
-    servo.output_rate_hz = 20.0;
-    servo.subgoal_deadline_s = SERVO_DEADLINE_S;
-    servo.command_ttl_s = COMMAND_TTL_S;
-    servo.command_topic = "cmd/autonomy".into();
-    Ok(vec![
-        (
-            "inference",
-            format!("camera = \"front\"\nbackend = \"onnx\"\nmodel_config = {quoted}\n"),
-        ),
-        (
-            "bin-projection",
-            "method = \"fitam\"\ncameras = [\"front\"]\n".into(),
-        ),
-        ("costmap-fusion", sim_tuning::to_toml(&fusion)?),
-        ("subgoal-selection", sim_tuning::to_toml(&planner)?),
-        ("velocity-servoing", sim_tuning::to_toml(&servo)?),
-        ("command-mux", String::new()),
-    ])
+/// The graph: every node of [`STAGES`] (and no other), each writing the
+/// topic chaos watches it on, the servo behind the mux; and the servo's
+/// deadline and command TTL from its config.
+fn load_graph() -> Result<(Graph, PathBuf, ServoStageConfig)> {
+    let path = std::path::absolute(crate::graph::repo_file(GRAPH)?)?;
+    let graph = Graph::load(&path)?;
+    let dir = path.parent().unwrap_or(Path::new("/")).to_path_buf();
+    for n in &graph.nodes {
+        let Some((_, topic)) = STAGES.iter().find(|s| s.0 == n.spec.name) else {
+            bail!(
+                "{}: node `{}` is not one chaos faults ({})",
+                path.display(),
+                n.spec.name,
+                STAGES.map(|s| s.0).join(", ")
+            );
+        };
+        if !n.io.writes.iter().any(|w| w == topic) {
+            bail!(
+                "{}: node `{}` does not write {topic}, the topic chaos watches it on",
+                path.display(),
+                n.spec.name
+            );
+        }
+    }
+    let servo = graph
+        .nodes
+        .iter()
+        .find(|n| n.spec.name == "velocity-servoing")
+        .with_context(|| format!("{}: no node `velocity-servoing`", path.display()))?;
+    let servo: ServoStageConfig = match &servo.config_text {
+        Some(text) => farsight_stage::parse_config(text, &servo.config_origin)?,
+        None => ServoStageConfig::default(),
+    };
+    if servo.command_topic != "cmd/autonomy" {
+        bail!(
+            "{}: the servo writes {}; chaos runs it behind the command mux (command_topic = \"cmd/autonomy\")",
+            path.display(),
+            servo.command_topic
+        );
+    }
+    Ok((graph, dir, servo))
 }
 
-/// Starts a stage and waits for its "ready" line; its log appends.
-fn start(name: &'static str, config: &Path, prefix: &str, out: &Path) -> Result<Stage> {
+/// Starts a node with `farsight run`'s command for it and waits for its
+/// "ready" line; its log appends.
+fn start(spec: &NodeSpec, graph_dir: &Path, prefix: &str, out: &Path) -> Result<Stage> {
+    let name = &spec.name;
     let log = out.join(format!("{name}.log"));
     let file = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
         .open(&log)?;
-    let mut stage = crate::demo::start_logging(name, config, prefix, file)?;
+    let child = crate::run::node_command(spec, graph_dir, out)?
+        .env("FARSIGHT_IPC_PREFIX", prefix)
+        .stdout(Stdio::piped())
+        .stderr(file)
+        .spawn()
+        .with_context(|| format!("starting farsight-{}", spec.stage))?;
+    let mut stage = Stage(child);
     let mut ready = String::new();
     BufReader::new(stage.0.stdout.take().expect("piped")).read_line(&mut ready)?;
     if ready.trim() != format!("{name} ready") {
-        bail!("farsight-{name} did not start; see {}", log.display());
+        bail!(
+            "farsight-{} did not start; see {}",
+            spec.stage,
+            log.display()
+        );
     }
     Ok(stage)
 }
@@ -389,17 +420,22 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
     // included): the monitor must open the same iceoryx2 root.
     let mut settings = IpcSettings::from_env();
     settings.prefix = Some(prefix.clone());
+    let (graph, graph_dir, servo) = load_graph()?;
+    let (servo_deadline_s, command_ttl_s) = (servo.subgoal_deadline_s, servo.command_ttl_s);
     let bus = Bus::open_with("chaos", &settings)?;
     let mut stages = Vec::new();
-    for (name, text) in configs()? {
-        let config = out.join(format!("{name}.toml"));
-        std::fs::write(&config, text)?;
+    for (name, output_topic) in STAGES {
+        let spec = graph
+            .nodes
+            .iter()
+            .find(|n| n.spec.name == name)
+            .map(|n| n.spec.clone())
+            .with_context(|| format!("{GRAPH}: no node `{name}`"))?;
         let _ = std::fs::remove_file(out.join(format!("{name}.log")));
-        let output_topic = STAGES.iter().find(|s| s.0 == name).expect("listed").1;
-        let child = start(name, &config, &prefix, &out)?;
+        let child = start(&spec, &graph_dir, &prefix, &out)?;
         stages.push(StageProc {
             name,
-            config,
+            spec,
             child: Some(child),
             output: AnySubscriber::open(&bus, output_topic)?,
         });
@@ -444,6 +480,8 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
                 ..Default::default()
             })
             .collect(),
+        servo_deadline_s,
+        command_ttl_s,
         ..Default::default()
     };
     let start_wall = Instant::now();
@@ -473,8 +511,8 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
                 .then(|| now_ns.saturating_sub(c.stamp.capture_time_ns) as f64 * 1e-9 - gap_s)
         };
         for (sub, allowed_s, is_servo) in [
-            (&servo_out, SERVO_DEADLINE_S, true),
-            (&mux_out, SERVO_DEADLINE_S + COMMAND_TTL_S, false),
+            (&servo_out, servo_deadline_s, true),
+            (&mux_out, servo_deadline_s + command_ttl_s, false),
         ] {
             while let Some(c) = sub.latest()? {
                 let Some(age_s) = moving_age_s(&c) else {
@@ -522,7 +560,7 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
             if ended && !is_down {
                 report.stages[k].self_exits += 1;
                 tracing::error!(stage = s.name, "exited on its own; restarting");
-                s.child = Some(start(s.name, &s.config, &prefix, &out)?);
+                s.child = Some(start(&s.spec, &graph_dir, &prefix, &out)?);
             }
         }
         // The fault schedule.
@@ -603,7 +641,7 @@ pub fn run(a: &ChaosArgs) -> Result<ChaosReport> {
                             // ours; the handle holds no pipes (stdout taken).
                             std::mem::forget(old);
                         }
-                        s.child = Some(start(s.name, &s.config, &prefix, &out)?);
+                        s.child = Some(start(&s.spec, &graph_dir, &prefix, &out)?);
                     }
                     Fault::Freeze => signal(s.child.as_ref().expect("running"), libc::SIGCONT),
                 }

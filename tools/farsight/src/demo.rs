@@ -1,12 +1,15 @@
-//! `farsight demo --orfd`: runs the graph as separate processes on the real
-//! ORFD off-road frames and watches it the way a laptop would. (Without
-//! `--orfd`, the demo is the closed loop in simulation: [`crate::demo_sim`].)
+//! `farsight demo --orfd`: runs the graph file `graphs/orfd.toml` as
+//! separate processes (under `farsight run`) on the real ORFD off-road
+//! frames and watches it the way a laptop would. (Without `--orfd`, the demo
+//! is the closed loop in simulation: [`crate::demo_sim`].)
 //!
 //! camera-ingest (folder of real frames) -> inference (TwinLiteNet) ->
 //! subgoal-selection (POVNav) -> velocity-servoing, all in iceoryx2 shared
 //! memory, with this process playing the robot (pose, and a goal 200 m ahead)
-//! and, through the bridge and zenoh, the laptop: it saves every frame and
-//! navigability image it receives as PNG and reports the commands.
+//! and, through the graph's bridge and zenoh, the laptop: it saves every
+//! frame and navigability image it receives as PNG and reports the commands.
+//! `--frames`, `--rate-hz` and `--loops` other than the graph's run a copy of
+//! the graph with those values, written to the output folder.
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
@@ -17,9 +20,9 @@ use farsight_interfaces::msg::{
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::ipc::{Bus, IpcSettings};
 use farsight_interfaces::transport::net::NetBus;
-use std::io::{BufRead, BufReader, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 #[derive(Args)]
@@ -38,21 +41,36 @@ pub struct DemoArgs {
     /// Named mode: the simulator's class image stands in for the inference stage.
     #[arg(long)]
     oracle: bool,
+    /// Drive this graph file instead of --method's (any graphs/sim/*.toml,
+    /// or your own): the simulator provides what its [[external]] topics
+    /// ask for.
+    #[arg(long)]
+    graph: Option<PathBuf>,
     /// Simulated seconds before the run counts as failed.
     #[arg(long, default_value_t = 240.0)]
     max_time_s: f64,
-    /// Instead of the simulator: the real ORFD frames through TwinLiteNet and POVNav.
+    /// The simulator on the wall clock, 10 frames a second, taking whatever
+    /// command is newest (as a robot does), instead of lock-step.
+    #[arg(long)]
+    realtime: bool,
+    /// How many messages of each topic the recorder may fall behind before
+    /// it loses one (its queues); 0 reads each topic's latest value.
+    #[arg(long, default_value_t = 8)]
+    recorder_queue_depth: usize,
+    /// Instead of the simulator: the real ORFD frames through TwinLiteNet and
+    /// POVNav (graphs/orfd.toml).
     #[arg(long)]
     orfd: bool,
-    /// Folder of frames to play.
-    #[arg(long, default_value = "../shared/data/orfd/image_data")]
-    frames: PathBuf,
-    /// Passes over the folder.
-    #[arg(long, default_value_t = 3)]
-    loops: u32,
-    /// Frames per second.
-    #[arg(long, default_value_t = 10.0)]
-    rate_hz: f64,
+    /// Folder of frames to play [default: graphs/orfd.toml's,
+    /// ../shared/data/orfd/image_data from the repository root].
+    #[arg(long)]
+    frames: Option<PathBuf>,
+    /// Passes over the folder [default: graphs/orfd.toml's].
+    #[arg(long)]
+    loops: Option<u32>,
+    /// Frames per second [default: graphs/orfd.toml's].
+    #[arg(long)]
+    rate_hz: Option<f64>,
 }
 
 pub struct Stage(pub(crate) Child);
@@ -87,22 +105,6 @@ pub(crate) fn sibling(name: &str) -> Result<PathBuf> {
     Ok(p)
 }
 
-/// Starts a stage and waits for its `<name> ready` line.
-pub fn start_ready(name: &'static str, config: &Path, prefix: &str, out: &Path) -> Result<Stage> {
-    let log = out.join(format!("{name}.log"));
-    let mut stage = start(name, config, prefix, &log)?;
-    let mut ready = String::new();
-    BufReader::new(stage.0.stdout.take().expect("stdout")).read_line(&mut ready)?;
-    if ready.trim() != format!("{name} ready") {
-        bail!("farsight-{name} did not start; see {}", log.display());
-    }
-    Ok(stage)
-}
-
-fn start(name: &'static str, config: &Path, prefix: &str, log: &Path) -> Result<Stage> {
-    start_logging(name, config, prefix, std::fs::File::create(log)?)
-}
-
 /// Has the child get SIGTERM when this process dies, however it dies
 /// (SIGKILL included): a demo or chaos run that is killed leaves no stages
 /// behind to eat the machine.
@@ -120,26 +122,6 @@ pub(crate) fn die_with_parent(cmd: &mut Command) -> &mut Command {
     }
 }
 
-/// Starts a stage with its stderr into `log_file` (a restarted stage's log
-/// goes on in the same file); its stdout stays piped for the ready line.
-pub(crate) fn start_logging(
-    name: &'static str,
-    config: &Path,
-    prefix: &str,
-    log_file: std::fs::File,
-) -> Result<Stage> {
-    let child = die_with_parent(&mut Command::new(sibling(&format!("farsight-{name}"))?))
-        .arg("--config")
-        .arg(config)
-        .env("FARSIGHT_IPC_PREFIX", prefix)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(log_file)
-        .spawn()
-        .with_context(|| format!("starting farsight-{name}"))?;
-    Ok(Stage(child))
-}
-
 pub fn run(a: DemoArgs) -> Result<()> {
     if !a.orfd {
         return crate::demo_sim::run(crate::demo_sim::SimDemo {
@@ -148,102 +130,33 @@ pub fn run(a: DemoArgs) -> Result<()> {
             seed: a.seed,
             method: a.method,
             oracle: a.oracle,
+            graph: a.graph,
             max_time_s: a.max_time_s,
+            realtime: a.realtime,
+            recorder_queue_depth: a.recorder_queue_depth,
         });
     }
-    let frames = std::fs::canonicalize(&a.frames).with_context(|| {
-        format!(
-            "frames folder {} (run from the repository root, next to ../shared)",
-            a.frames.display()
-        )
-    })?;
     let out = a.out.clone();
     std::fs::create_dir_all(out.join("frames"))?;
     let out = std::fs::canonicalize(&out)?;
+    let orfd = OrfdGraph::prepare(&a, &out)?;
+    let frames = orfd.frames.clone();
     let prefix = format!("demo{}_", std::process::id());
-    let port = std::net::TcpListener::bind("127.0.0.1:0")?
-        .local_addr()?
-        .port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-
-    let ingest_cfg = out.join("camera-ingest.toml");
-    std::fs::write(
-        &ingest_cfg,
-        format!(
-            "# ORFD camera (calib/cam_K), mounted 1.6 m up, looking ahead.\n[[cameras]]\nfolder = {:?}\nrate_hz = {}\nloops = {}\npace_by = \"perception/front/navigability\"\n\
-             # recorded frames, stamped as they go out: the graph runs on the wall clock\n\
-             capture_time = \"publish\"\n\n\
-             [cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\nxyz_m = [0.0, 0.0, 1.6]\n",
-            frames.display().to_string(),
-            a.rate_hz,
-            a.loops
-        ),
-    )?;
-    let bridge_cfg = out.join("bridge.toml");
-    std::fs::write(
-        &bridge_cfg,
-        format!(
-            "robot = \"demo\"\nimport = []\n\n[zenoh]\nmode = \"peer\"\nlisten = [\"{endpoint}\"]\n\n\
-             [[export]]\ntopic = \"camera/front/image\"\ndownsample = 2\ncompression = \"png\"\n\n\
-             [[export]]\ntopic = \"health/camera-ingest\"\n\n[[export]]\ntopic = \"camera/front/info\"\n\n\
-             [[export]]\ntopic = \"perception/front/navigability\"\ncompression = \"png\"\n\n\
-             [[export]]\ntopic = \"cmd/velocity\"\n\n[[export]]\ntopic = \"nav/subgoal\"\n"
-        ),
-    )?;
-
-    let root = std::env::current_dir()?;
-    let model = root.join("deploy/models/twinlitenet.toml");
-    if !model.exists() {
-        bail!(
-            "{} not found: run the demo from the repository root",
-            model.display()
-        );
-    }
-    let inference_cfg = out.join("inference.toml");
-    std::fs::write(
-        &inference_cfg,
-        format!(
-            "camera = \"front\"\nmodel_config = {:?}\n",
-            model.display().to_string()
-        ),
-    )?;
-    let subgoal_cfg = out.join("subgoal-selection.toml");
-    std::fs::write(
-        &subgoal_cfg,
-        "method = \"povnav\"\ncamera = \"front\"\nrobot_width_m = 1.0\n",
-    )?;
-    let servo_cfg = out.join("velocity-servoing.toml");
-    std::fs::write(
-        &servo_cfg,
-        "output_rate_hz = 20.0\nsubgoal_deadline_s = 0.5\n",
-    )?;
 
     println!("farsight demo: camera-ingest -> inference -> subgoal-selection -> velocity-servoing, watched over zenoh");
+    println!("  graph: {}", orfd.path.display());
     println!("  frames: {}", frames.display());
     println!("  output: {}", out.display());
-    let bridge = start("bridge", &bridge_cfg, &prefix, &out.join("bridge.log"))?;
-    let mut bridge = bridge;
-    let mut ready = String::new();
-    BufReader::new(bridge.0.stdout.take().expect("stdout")).read_line(&mut ready)?;
-    if ready.trim() != "bridge ready" {
-        bail!(
-            "the bridge did not start; see {}",
-            out.join("bridge.log").display()
-        );
-    }
-    let net = NetBus::open(NetBus::config("peer", &[], &[endpoint])?, "demo")?;
-    let mut images = net.slice_subscriber(&topics::camera_image("front"))?;
-    let mut health = net.subscriber(&topics::health("camera-ingest"))?;
-    let mut info = net.subscriber(&topics::camera_info("front"))?;
-    let mut nav_images = net.slice_subscriber(&topics::navigability("front"))?;
-    let mut commands = net.subscriber(&topics::velocity_command())?;
-    let mut subgoals = net.subscriber(&topics::subgoal())?;
-    // The robot side: pose at the origin facing east, a goal 200 m ahead.
+    // The robot side: pose at the origin facing east, a goal 200 m ahead,
+    // there (history) for the stages when they subscribe.
     let robot = Bus::open_with(
         "demo-robot",
+        // FARSIGHT_IPC_ROOT as the graph's nodes inherit it: with another
+        // root they would never see this pose and goal.
         &IpcSettings {
             prefix: Some(prefix.clone()),
-            root: None,
+            queues: Some(orfd.queues.clone()),
+            ..IpcSettings::from_env()
         },
     )?;
     let pose_pub = robot.publisher(&topics::pose())?;
@@ -254,21 +167,30 @@ pub fn run(a: DemoArgs) -> Result<()> {
         tolerance_m: 2.0,
         ..Default::default()
     })?;
-    let _servo = start_ready("velocity-servoing", &servo_cfg, &prefix, &out)?;
-    let _subgoal = start_ready("subgoal-selection", &subgoal_cfg, &prefix, &out)?;
-    let _inference = start_ready("inference", &inference_cfg, &prefix, &out)?;
+    // The laptop side, subscribed before the graph starts (every node at
+    // once, camera-ingest's first frame among them): it connects to the
+    // bridge as soon as the bridge listens, trying every 100 ms.
+    let mut zenoh = NetBus::config("peer", &[], std::slice::from_ref(&orfd.endpoint))?;
+    zenoh
+        .insert_json5(
+            "connect/retry",
+            "{ period_init_ms: 100, period_max_ms: 100, period_increase_factor: 1.0 }",
+        )
+        .map_err(|e| anyhow::anyhow!("zenoh connect/retry: {e}"))?;
+    let net = NetBus::open(zenoh, "demo")?;
+    let mut images = net.slice_subscriber(&topics::camera_image("front"))?;
+    let mut health = net.subscriber(&topics::health("camera-ingest"))?;
+    let mut info = net.subscriber(&topics::camera_info("front"))?;
+    let mut nav_images = net.slice_subscriber(&topics::navigability("front"))?;
+    let mut commands = net.subscriber(&topics::velocity_command())?;
+    let mut subgoals = net.subscriber(&topics::subgoal())?;
+    // Every node of the graph, each one's config and log in `out`.
+    let stages = crate::run::start_graph(&orfd.path, &out, &prefix, "", Duration::from_secs(120))?;
     std::fs::create_dir_all(out.join("navigability"))?;
-    std::thread::sleep(Duration::from_millis(500));
     let started = Instant::now();
     let (mut tracking, mut v_sum, mut w_abs_max, mut last_subgoal) = (0u64, 0.0f64, 0.0f64, None);
-    let ingest = start(
-        "camera-ingest",
-        &ingest_cfg,
-        &prefix,
-        &out.join("camera-ingest.log"),
-    )?;
 
-    let expected = a.loops as u64 * std::fs::read_dir(&frames)?.count() as u64;
+    let expected = orfd.loops as u64 * std::fs::read_dir(&frames)?.count() as u64;
     let (mut received, mut bytes, mut last_health, mut camera) = (0u64, 0usize, None, None);
     let deadline = Instant::now() + Duration::from_secs(60);
     while received < expected && Instant::now() < deadline {
@@ -332,12 +254,20 @@ pub fn run(a: DemoArgs) -> Result<()> {
     }
     println!();
     let elapsed = started.elapsed().as_secs_f64();
-    drop(ingest);
-    std::thread::sleep(Duration::from_millis(300));
-    if let Some(h) = health.latest()? {
-        last_health = Some(h);
+    // camera-ingest ends when it has played its loops: its last health
+    // report (stopping) carries the final counts.
+    let end = Instant::now() + Duration::from_secs(2);
+    while Instant::now() < end
+        && !last_health.is_some_and(|h: farsight_interfaces::msg::StageHealth| {
+            h.state == HealthState::STOPPING
+        })
+    {
+        if let Some(h) = health.latest()? {
+            last_health = Some(h);
+        }
+        std::thread::sleep(Duration::from_millis(20));
     }
-    drop(bridge);
+    drop(stages);
 
     let mut summary = String::new();
     summary += &format!(
@@ -386,4 +316,216 @@ pub fn run(a: DemoArgs) -> Result<()> {
         bail!("no frames arrived; logs are in {}", out.display());
     }
     Ok(())
+}
+
+/// The ORFD demo's graph, relative to the repository root.
+const ORFD_GRAPH: &str = "graphs/orfd.toml";
+
+/// Config keys whose values are paths, relative ones resolving against the
+/// graph file's folder (camera-ingest, inference, costmap-fusion,
+/// subgoal-selection, bridge).
+const PATH_KEYS: [&str; 9] = [
+    "folder",
+    "depth_folder",
+    "file",
+    "camera_info",
+    "model_config",
+    "class_table",
+    "hip_library",
+    "hip_model",
+    "config_file",
+];
+
+/// The graph the ORFD demo runs and what the demo needs to know of it.
+struct OrfdGraph {
+    /// `graphs/orfd.toml`, or the copy with the user's values in `out`.
+    path: PathBuf,
+    /// camera-ingest's frames folder and passes over it.
+    frames: PathBuf,
+    loops: u32,
+    /// Where the graph's bridge listens (the laptop side connects there).
+    endpoint: String,
+    /// The queues the graph declares (its recorder's): this process
+    /// publishes the pose and goal, so it feeds them too.
+    queues: String,
+}
+
+impl OrfdGraph {
+    /// Loads `graphs/orfd.toml`; with `--frames`, `--rate-hz` or `--loops`
+    /// other than its values, writes a copy with them (relative paths made
+    /// absolute) to `out/orfd.toml` and runs that.
+    fn prepare(a: &DemoArgs, out: &Path) -> Result<Self> {
+        let path = std::path::absolute(crate::graph::repo_file(ORFD_GRAPH)?)?;
+        let dir = path.parent().unwrap_or(Path::new("/")).to_path_buf();
+        let graph = crate::graph::Graph::load(&path)?;
+        let node = |stage: &str| {
+            graph
+                .nodes
+                .iter()
+                .find(|n| n.spec.stage == stage)
+                .with_context(|| format!("{}: no {stage} node", path.display()))
+        };
+        let ingest_node = node("camera-ingest")?;
+        let ingest: farsight_camera_ingest::IngestConfig = match &ingest_node.config_text {
+            Some(t) => farsight_stage::parse_config(t, &ingest_node.config_origin)?,
+            None => Default::default(),
+        };
+        let [camera] = ingest.cameras.as_slice() else {
+            bail!(
+                "{}: the demo plays one camera's frames; node `{}` has {}",
+                path.display(),
+                ingest_node.spec.name,
+                ingest.cameras.len()
+            );
+        };
+        let bridge_node = node("bridge")?;
+        let bridge: farsight_bridge::BridgeConfig = match &bridge_node.config_text {
+            Some(t) => farsight_stage::parse_config(t, &bridge_node.config_origin)?,
+            None => Default::default(),
+        };
+        let endpoint = bridge.zenoh.listen.first().cloned().with_context(|| {
+            format!(
+                "{}: node `{}` listens nowhere (zenoh.listen): the demo connects there",
+                path.display(),
+                bridge_node.spec.name
+            )
+        })?;
+        // A clear word for a port in use (another demo, a bridge): the
+        // graph's bridge would fail to start.
+        if let Some(addr) = endpoint.strip_prefix("tcp/") {
+            if let Err(e) = std::net::TcpListener::bind(addr) {
+                bail!(
+                    "{endpoint} (where {}'s bridge listens) is not free: {e}",
+                    path.display()
+                );
+            }
+        }
+
+        let graph_frames = ingest_node.config_dir.join(&camera.folder);
+        let mut set: Vec<(&str, toml::Value)> = Vec::new();
+        let frames = match &a.frames {
+            Some(f) => {
+                let f = std::fs::canonicalize(f).with_context(|| {
+                    format!(
+                        "frames folder {} (run from the repository root, next to ../shared)",
+                        f.display()
+                    )
+                })?;
+                if std::fs::canonicalize(&graph_frames).ok().as_ref() != Some(&f) {
+                    set.push(("folder", f.display().to_string().into()));
+                }
+                f
+            }
+            None => std::fs::canonicalize(&graph_frames).with_context(|| {
+                format!(
+                    "frames folder {} ({}'s; ORFD's frames belong in ../shared/data/orfd next to the repository, or pass --frames)",
+                    graph_frames.display(),
+                    path.display()
+                )
+            })?,
+        };
+        let rate_hz = a.rate_hz.unwrap_or(camera.rate_hz);
+        if rate_hz != camera.rate_hz {
+            set.push(("rate_hz", rate_hz.into()));
+        }
+        let loops = a.loops.unwrap_or(camera.loops);
+        if loops != camera.loops {
+            set.push(("loops", i64::from(loops).into()));
+        }
+        if set.is_empty() {
+            return Ok(Self {
+                path,
+                frames,
+                loops,
+                endpoint,
+                queues: graph.queues("robot"),
+            });
+        }
+
+        // The copy: the graph's TOML with the user's values in the camera
+        // table, edited as data and written by the serializer.
+        let text = std::fs::read_to_string(&path)?;
+        let mut doc: toml::Table =
+            toml::from_str(&text).with_context(|| format!("graph {}", path.display()))?;
+        let nodes = doc
+            .get_mut("node")
+            .and_then(toml::Value::as_array_mut)
+            .context("a graph has [[node]] tables")?;
+        for n in nodes.iter_mut() {
+            let n = n.as_table_mut().context("[[node]] is a table")?;
+            // The copy lives in `out`: every relative path is made absolute.
+            match n.get_mut("config") {
+                Some(toml::Value::String(file)) => *file = absolute(&dir.join(&*file))?,
+                Some(config) => absolutize(config, None, &dir)?,
+                None => {}
+            }
+            if n.get("name").and_then(toml::Value::as_str) != Some(&ingest_node.spec.name) {
+                continue;
+            }
+            let camera = n
+                .get_mut("config")
+                .and_then(toml::Value::as_table_mut)
+                .and_then(|c| c.get_mut("cameras"))
+                .and_then(toml::Value::as_array_mut)
+                .and_then(|c| c.first_mut())
+                .and_then(toml::Value::as_table_mut)
+                .with_context(|| {
+                    format!(
+                        "{}: node `{}`'s [[node.config.cameras]] is not inline",
+                        path.display(),
+                        ingest_node.spec.name
+                    )
+                })?;
+            for (key, value) in &set {
+                camera.insert(key.to_string(), value.clone());
+            }
+        }
+        let copy = out.join("orfd.toml");
+        let changed: Vec<String> = set.iter().map(|(k, v)| format!("{k} = {v}")).collect();
+        std::fs::write(
+            &copy,
+            format!(
+                "# {} with the demo's {} (written by farsight demo --orfd)\n{}",
+                path.display(),
+                changed.join(", "),
+                toml::to_string(&doc)?
+            ),
+        )
+        .with_context(|| format!("writing {}", copy.display()))?;
+        Ok(Self {
+            path: copy,
+            frames,
+            loops,
+            endpoint,
+            queues: graph.queues("robot"),
+        })
+    }
+}
+
+/// Makes the relative paths (the values of [`PATH_KEYS`]) in a node's
+/// inline config absolute against `dir`.
+fn absolutize(value: &mut toml::Value, key: Option<&str>, dir: &Path) -> Result<()> {
+    match value {
+        toml::Value::String(s) if key.is_some_and(|k| PATH_KEYS.contains(&k)) && !s.is_empty() => {
+            *s = absolute(&dir.join(&*s))?;
+        }
+        toml::Value::Array(items) => {
+            for item in items {
+                absolutize(item, key, dir)?;
+            }
+        }
+        toml::Value::Table(table) => {
+            for (k, v) in table.iter_mut() {
+                absolutize(v, Some(k), dir)?;
+            }
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+/// `path` made absolute, without `..` where it exists.
+fn absolute(path: &Path) -> Result<String> {
+    let p = std::fs::canonicalize(path).or_else(|_| std::path::absolute(path))?;
+    Ok(p.display().to_string())
 }

@@ -22,12 +22,13 @@
 //!   POVNav -> the POVNav servo law; `--oracle` swaps the inference stage
 //!   for the simulator's class image.
 
-use crate::demo::{start_ready, Stage};
-use crate::sim_tuning;
+use crate::demo::Stage;
 use anyhow::{bail, Context, Result};
 use clap::ValueEnum;
+use farsight_interfaces::transport::ipc::QUEUES_ENV;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
+use std::time::Duration;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Method {
@@ -35,6 +36,10 @@ pub enum Method {
     DstarLite,
     Povnav,
     Lrn,
+    /// LRN's heading as POVNav's goal (graphs/sim/povnav-lrn.toml).
+    PovnavLrn,
+    /// LRN's heading as a D* Lite local planner's goal (graphs/sim/lrn-dstar.toml).
+    LrnDstar,
 }
 
 pub struct SimDemo {
@@ -43,46 +48,48 @@ pub struct SimDemo {
     pub seed: u64,
     pub method: Method,
     pub oracle: bool,
+    pub graph: Option<PathBuf>,
     pub max_time_s: f64,
+    pub realtime: bool,
+    pub recorder_queue_depth: usize,
 }
 
-/// HSV ranges of the simulator's navigable ground colours (road, trail,
-/// grass, field), shaded and hazed as the renderer draws them.
-const HSV_GROUND: &str = "\
-[[hsv.ranges]]          # grass, field: yellow-green to green\n\
-hue_deg = [55.0, 115.0]\nsaturation = [0.35, 0.75]\nvalue = [0.35, 0.85]\n\
-[[hsv.ranges]]          # road, trail: tan, low saturation\n\
-hue_deg = [25.0, 45.0]\nsaturation = [0.1, 0.45]\nvalue = [0.4, 0.8]\n";
+/// The recorder's instance name: its health topic is its lock-step answer.
+const RECORDER: &str = "recorder";
 
-/// The topics the demo records by name (subscribed before anything runs).
-const RECORDED: [&str; 16] = [
-    "camera/front/image",
-    "camera/front/info",
-    "state/pose",
-    "nav/goal",
-    "costmap/local",
-    "perception/front/navigability",
-    "perception/front/heatmap",
-    "bins/angular",
-    "bins/polar",
-    "nav/subgoal",
-    "nav/path/visual",
-    "nav/path/visual_robot",
-    "nav/path/planned",
-    "costmap/fused",
-    "cmd/velocity",
-    "health/*",
-];
+/// Every topic of the graph, each stage instance's health included, by
+/// name: all subscribed before anything runs, so none is recorded from a
+/// later message than its first.
+fn recorded_topics(graph: &crate::graph::Graph) -> Vec<String> {
+    let mut topics: Vec<String> = graph.topics.keys().cloned().collect();
+    for node in &graph.nodes {
+        let health = farsight_interfaces::topics::health(&node.spec.name)
+            .name()
+            .to_string();
+        if !topics.contains(&health) {
+            topics.push(health);
+        }
+    }
+    topics
+}
 
-/// `farsight record` into `out/recording.mcap`, as a child process; stopped
-/// (and its file finished) when the returned guard drops.
-fn start_recorder(out: &Path, prefix: &str) -> Result<Stage> {
+/// `farsight record` into `out/recording.mcap`, as a child process in the
+/// lock-step answer set (it reports each command it has written, and the
+/// simulator waits for that); stopped (and its file finished) when the
+/// returned guard drops.
+fn start_recorder(out: &Path, prefix: &str, queues: &str, topics: &[String]) -> Result<Recorder> {
     use std::io::BufRead;
     let log = std::fs::File::create(out.join("recorder.log"))?;
     let mut child = Command::new(std::env::current_exe()?)
-        .args(["record", "--topics", &RECORDED.join(","), "--out"])
+        .args(["record", "--topics", &topics.join(",")])
+        .args([
+            "--ack",
+            farsight_interfaces::topics::velocity_command().name(),
+        ])
+        .args(["--instance", RECORDER, "--out"])
         .arg(out.join("recording.mcap"))
         .env("FARSIGHT_IPC_PREFIX", prefix)
+        .env(QUEUES_ENV, queues)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(log)
@@ -97,13 +104,36 @@ fn start_recorder(out: &Path, prefix: &str) -> Result<Stage> {
             out.join("recorder.log").display()
         );
     }
-    // Its closing report (messages and skips per topic) goes to our stdout.
-    std::thread::spawn(move || {
+    // Its closing report (messages and skips per topic) goes to our stdout
+    // and to recorder-report.txt.
+    let mut report = std::fs::File::create(out.join("recorder-report.txt"))?;
+    let reader = std::thread::spawn(move || {
+        use std::io::Write;
         for line in stdout.lines().map_while(Result::ok) {
             println!("recorder: {line}");
+            let _ = writeln!(report, "{line}");
         }
     });
-    Ok(Stage(child))
+    Ok(Recorder {
+        child: Some(Stage(child)),
+        reader: Some(reader),
+    })
+}
+
+/// The recorder's process and the thread that passes its report on.
+struct Recorder {
+    child: Option<Stage>,
+    reader: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Drop for Recorder {
+    /// Stops the recorder (its file finished) and waits for its report.
+    fn drop(&mut self) {
+        drop(self.child.take());
+        if let Some(r) = self.reader.take() {
+            let _ = r.join();
+        }
+    }
 }
 
 /// Adds the method's decisions to the map PNG, from the recording: every
@@ -171,27 +201,19 @@ fn draw_decisions(out: &Path, scenario: &str, seed: u64) -> Result<()> {
     Ok(())
 }
 
-/// Fusion, D* Lite and the carrot tracker: FITAM's planning half.
-fn dstar_stages(
-    fusion: &farsight_costmap_fusion::stage::FusionStageConfig,
-) -> Result<Vec<(&'static str, String)>> {
-    Ok(vec![
-        ("costmap-fusion", sim_tuning::to_toml(fusion)?),
-        (
-            "subgoal-selection",
-            sim_tuning::to_toml(&sim_tuning::dstar_subgoal_selection())?,
-        ),
-        (
-            "velocity-servoing",
-            sim_tuning::to_toml(&sim_tuning::dstar_servo())?,
-        ),
-    ])
-}
-
-fn write(out: &Path, name: &str, text: &str) -> Result<PathBuf> {
-    let p = out.join(name);
-    std::fs::write(&p, text).with_context(|| format!("writing {}", p.display()))?;
-    Ok(p)
+impl Method {
+    /// The method's graph file, relative to the repository root.
+    pub fn graph(self, oracle: bool) -> &'static str {
+        match (self, oracle) {
+            (Method::Fitam, _) => "graphs/sim/fitam.toml",
+            (Method::DstarLite, _) => "graphs/sim/dstar-lite.toml",
+            (Method::Lrn, _) => "graphs/sim/lrn.toml",
+            (Method::PovnavLrn, _) => "graphs/sim/povnav-lrn.toml",
+            (Method::LrnDstar, _) => "graphs/sim/lrn-dstar.toml",
+            (Method::Povnav, false) => "graphs/sim/povnav.toml",
+            (Method::Povnav, true) => "graphs/sim/povnav-oracle.toml",
+        }
+    }
 }
 
 pub fn run(d: SimDemo) -> Result<()> {
@@ -201,77 +223,32 @@ pub fn run(d: SimDemo) -> Result<()> {
     std::fs::create_dir_all(&d.out)?;
     let out = std::fs::canonicalize(&d.out)?;
     let prefix = format!("simdemo{}_", std::process::id());
-    // Each stage's config file, in start order.
-    let model = |rel: &str| -> Result<String> {
-        let path = sim_tuning::shipped_model(rel)?;
-        // A TOML string, escaped as TOML escapes (not as Rust's Debug does).
-        let quoted = toml::Value::String(path.canonicalize()?.display().to_string());
-        Ok(format!(
-            "camera = \"front\"\nbackend = \"onnx\"\nmodel_config = {quoted}\n"
-        ))
+    let graph = match &d.graph {
+        Some(g) => std::path::absolute(g)?,
+        None => crate::graph::repo_file(d.method.graph(d.oracle))?,
     };
-    let configs: Vec<(&'static str, String)> = match d.method {
-        Method::Lrn => vec![
-            ("inference", model(sim_tuning::LRN_MODEL)?),
-            (
-                "bin-projection",
-                format!(
-                    "method = \"lrn\"\ncameras = [\"front\"]\n\n[bins]\n{}",
-                    sim_tuning::to_toml(&sim_tuning::lrn_bins())?
-                ),
-            ),
-            (
-                "subgoal-selection",
-                sim_tuning::to_toml(&sim_tuning::lrn_subgoal_selection())?,
-            ),
-            (
-                "velocity-servoing",
-                sim_tuning::to_toml(&sim_tuning::povnav_servo())?,
-            ),
-        ],
-        Method::Fitam => {
-            let mut c = vec![
-                ("inference", model(sim_tuning::FITAM_MODEL)?),
-                (
-                    "bin-projection",
-                    "method = \"fitam\"\ncameras = [\"front\"]\n".into(),
-                ),
-            ];
-            c.extend(dstar_stages(&sim_tuning::fitam_costmap_fusion())?);
-            c
-        }
-        Method::DstarLite => dstar_stages(&sim_tuning::dstar_costmap_fusion())?,
-        Method::Povnav => {
-            let mut c = Vec::new();
-            if !d.oracle {
-                c.push((
-                    "inference",
-                    format!("camera = \"front\"\nbackend = \"hsv\"\n{HSV_GROUND}"),
-                ));
-            }
-            c.push((
-                "subgoal-selection",
-                sim_tuning::to_toml(&sim_tuning::povnav_subgoal_selection())?,
-            ));
-            c.push((
-                "velocity-servoing",
-                sim_tuning::to_toml(&sim_tuning::povnav_servo())?,
-            ));
-            c
-        }
+    // The simulator provides what the graph reads from outside it.
+    let loaded = crate::graph::Graph::load(&graph)?;
+    let sim_options = crate::bench_nav::sim_options(&loaded, &d.scenario, d.seed, d.max_time_s);
+    // The graph's nodes as processes under `farsight run` (each one's config
+    // and log in `out`), all ready before the simulator's first frame.
+    // The recorder reads every topic from its queue (each publisher feeds
+    // one), so what is published after a frame's command (a far field that
+    // comes in late) is not overwritten by the next frame before the
+    // recorder takes it; at real time, so a recorder busy writing a frame
+    // misses nothing. The default depth, 8: a frame publishes at most two
+    // messages of any topic.
+    let recorded = recorded_topics(&loaded);
+    let queues = match d.recorder_queue_depth {
+        0 => String::new(),
+        depth => recorded
+            .iter()
+            .map(|t| format!("{t}={depth}"))
+            .collect::<Vec<_>>()
+            .join(","),
     };
-    let mut stages: Vec<Stage> = Vec::new();
-    for (stage, text) in &configs {
-        let config = write(&out, &format!("{stage}.toml"), text)?;
-        stages.push(start_ready(stage, &config, &prefix, &out)?);
-    }
-    eprintln!(
-        "stages up ({}); driving {} with {:?}{}...",
-        stages.len(),
-        d.scenario,
-        d.method,
-        if d.oracle { " (oracle perception)" } else { "" }
-    );
+    let stages = crate::run::start_graph(&graph, &out, &prefix, &queues, Duration::from_secs(120))?;
+    eprintln!("{} up; driving {}...", graph.display(), d.scenario,);
     let sim = std::env::current_exe()?.with_file_name("farsight-sim");
     if !sim.exists() {
         bail!(
@@ -279,9 +256,9 @@ pub fn run(d: SimDemo) -> Result<()> {
             sim.display()
         );
     }
-    // Every topic goes into the recording; the sim's and the outputs' names
-    // are subscribed before the sim starts, the rest (health) when they appear.
-    let recorder = start_recorder(&out, &prefix)?;
+    // Every topic of the graph goes into the recording, each subscribed
+    // before the simulator's first frame.
+    let recorder = start_recorder(&out, &prefix, &queues, &recorded)?;
     let mut cmd = Command::new(sim);
     cmd.args([
         "run",
@@ -293,9 +270,19 @@ pub fn run(d: SimDemo) -> Result<()> {
     .args(["--max-time-s", &d.max_time_s.to_string(), "--out"])
     .arg(&out)
     .env("FARSIGHT_IPC_PREFIX", &prefix)
+    .env(QUEUES_ENV, &queues)
     .stdin(Stdio::null());
-    if d.oracle {
+    cmd.args(["--cameras", &sim_options.cameras.join(",")]);
+    if d.realtime {
+        cmd.args(["--clock", "realtime"]);
+    } else {
+        cmd.args(["--await-health", RECORDER]);
+    }
+    if sim_options.oracle {
         cmd.arg("--oracle");
+    }
+    if sim_options.far_field_oracle {
+        cmd.arg("--far-field-oracle");
     }
     let status = cmd.status().context("running farsight-sim")?;
     drop(stages);
@@ -308,7 +295,7 @@ pub fn run(d: SimDemo) -> Result<()> {
     }
     draw_decisions(&out, &d.scenario, d.seed)?;
     println!(
-        "configs, logs, summary.toml, recording.mcap (see recorder.log) and {}-map.png are in {}",
+        "configs, logs, summary.toml, recording.mcap (see recorder.log and recorder-report.txt) and {}-map.png are in {}",
         d.scenario,
         out.display()
     );

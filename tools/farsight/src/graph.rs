@@ -29,7 +29,9 @@
 
 use anyhow::{bail, Context, Result};
 use farsight_interfaces::topics::{self, TopicKind};
-use farsight_interfaces::transport::ipc::{MAX_PUBLISHERS, MAX_SUBSCRIBERS};
+use farsight_interfaces::transport::ipc::{
+    segment_samples, MAX_PUBLISHERS, MAX_SUBSCRIBERS, QUEUE_SUBSCRIBERS,
+};
 use farsight_stage::{DeclaresTopics, Io, Need, Validate};
 use serde::de::DeserializeOwned;
 use serde::Deserialize;
@@ -37,36 +39,95 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-/// Every stage kind a graph node may name, with the function that loads
-/// its config and says what it reads and writes.
-pub const STAGE_KINDS: [(&str, LoadIo); 8] = [
-    (
+/// A stage kind a graph node may name: how its config is loaded and what
+/// it then reads and writes, and how an instance is built in this process
+/// (the in-process executor; `None` for kinds that only run as processes:
+/// a camera driver, the zenoh bridge).
+pub struct StageKindEntry {
+    pub kind: &'static str,
+    pub io: LoadIo,
+    pub build: Option<BuildStage>,
+}
+
+/// A kind that runs only as its own process.
+const fn process_only(kind: &'static str, io: LoadIo) -> StageKindEntry {
+    StageKindEntry {
+        kind,
+        io,
+        build: None,
+    }
+}
+
+/// A kind with a stage library type: runs as a process or in one.
+const fn stage<S>() -> StageKindEntry
+where
+    S: farsight_stage::StageKind + 'static,
+    S::Config: DeclaresTopics,
+{
+    StageKindEntry {
+        kind: S::KIND,
+        io: load_io::<S::Config>,
+        build: Some(build::<S>),
+    }
+}
+
+/// Every stage kind, once: graph checks, `farsight run` and the
+/// in-process executor all look kinds up here.
+pub const STAGE_KINDS: [StageKindEntry; 9] = [
+    process_only(
         "camera-ingest",
         load_io::<farsight_camera_ingest::IngestConfig>,
     ),
-    (
-        "inference",
-        load_io::<farsight_inference::stage::InferenceConfig>,
+    stage::<farsight_inference::inference_stage::InferenceStage>(),
+    stage::<farsight_bin_projection::projection_stage::ProjectionStage>(),
+    stage::<farsight_costmap_fusion::fusion_stage::FusionStage>(),
+    stage::<farsight_subgoal_selection::subgoal_stage::SubgoalStage>(),
+    stage::<farsight_velocity_servoing::servo_stage::ServoStage>(),
+    stage::<farsight_command_mux::mux_stage::MuxStage>(),
+    process_only("bridge", load_io::<farsight_bridge::BridgeConfig>),
+    process_only(
+        "recorder",
+        load_io::<farsight_recording::node::RecorderConfig>,
     ),
-    (
-        "bin-projection",
-        load_io::<farsight_bin_projection::stage::BinProjectionConfig>,
-    ),
-    (
-        "costmap-fusion",
-        load_io::<farsight_costmap_fusion::stage::FusionStageConfig>,
-    ),
-    (
-        "subgoal-selection",
-        load_io::<farsight_subgoal_selection::stage::SubgoalStageConfig>,
-    ),
-    (
-        "velocity-servoing",
-        load_io::<farsight_velocity_servoing::stage::ServoStageConfig>,
-    ),
-    ("command-mux", load_io::<farsight_command_mux::MuxConfig>),
-    ("bridge", load_io::<farsight_bridge::BridgeConfig>),
 ];
+
+/// Builds an instance of a stage kind in this process from its config text
+/// (`None`: the defaults).
+pub type BuildStage = fn(
+    instance: &str,
+    text: Option<&str>,
+    origin: &str,
+    dir: &Path,
+) -> Result<Box<dyn farsight_stage::Stage>>;
+
+fn parse_or_default<T: DeserializeOwned + Validate + Default>(
+    text: Option<&str>,
+    origin: &str,
+) -> Result<T, farsight_stage::ConfigError> {
+    match text {
+        Some(t) => farsight_stage::parse_config(t, origin),
+        None => {
+            let c = T::default();
+            c.validate()?;
+            Ok(c)
+        }
+    }
+}
+
+fn build<S: farsight_stage::StageKind + 'static>(
+    instance: &str,
+    text: Option<&str>,
+    origin: &str,
+    dir: &Path,
+) -> Result<Box<dyn farsight_stage::Stage>> {
+    let config: S::Config = parse_or_default(text, origin)?;
+    let env = farsight_stage::StageEnv {
+        instance: instance.to_string(),
+        config_dir: dir.to_path_buf(),
+    };
+    let stage = S::new(config, &env).with_context(|| format!("node `{instance}`"))?;
+    Ok(Box::new(stage))
+}
 
 /// Parses a config text as its stage would (`None`: the defaults) and
 /// returns what the instance reads and writes.
@@ -79,15 +140,22 @@ fn load_io<T: DeserializeOwned + Validate + Default + DeclaresTopics>(
     origin: &str,
     dir: &Path,
 ) -> Result<Io, String> {
-    let config: T = match text {
-        Some(t) => farsight_stage::parse_config(t, origin).map_err(|e| e.to_string())?,
-        None => {
-            let c = T::default();
-            c.validate().map_err(|e| e.to_string())?;
-            c
-        }
-    };
+    let config: T = parse_or_default(text, origin).map_err(|e| e.to_string())?;
     config.topics(instance, dir)
+}
+
+/// A file of the repository (a graph, a shipped model), looked for from the
+/// current folder up: the demo and the benchmark run from the repository
+/// root, tests from a crate's folder.
+pub fn repo_file(rel: &str) -> Result<PathBuf> {
+    let cwd = std::env::current_dir()?;
+    let found = cwd.ancestors().map(|a| a.join(rel)).find(|p| p.exists());
+    found.ok_or_else(|| {
+        anyhow::anyhow!(
+            "{rel} is in neither {} nor a folder above it: run from the farsight repository",
+            cwd.display()
+        )
+    })
 }
 
 /// When `farsight run` restarts a node.
@@ -148,11 +216,39 @@ pub struct GraphFile {
     pub externals: Vec<External>,
 }
 
-/// A node with what it reads and writes.
+/// A node with its config as read and what it reads and writes.
 #[derive(Debug, Clone)]
 pub struct Node {
     pub spec: NodeSpec,
     pub io: Io,
+    /// The config's text (`None`: the stage's defaults), where it came from
+    /// (for errors), and the folder its relative paths resolve against.
+    pub config_text: Option<String>,
+    pub config_origin: String,
+    pub config_dir: PathBuf,
+}
+
+impl Node {
+    /// Builds this node's stage in this process.
+    pub fn build(&self) -> Result<Box<dyn farsight_stage::Stage>> {
+        let entry = STAGE_KINDS
+            .iter()
+            .find(|e| e.kind == self.spec.stage)
+            .expect("checked at load");
+        let Some(build) = entry.build else {
+            bail!(
+                "node `{}`: a {} stage runs only as its own process, not in the in-process executor",
+                self.spec.name,
+                self.spec.stage
+            );
+        };
+        build(
+            &self.spec.name,
+            self.config_text.as_deref(),
+            &self.config_origin,
+            &self.config_dir,
+        )
+    }
 }
 
 impl Node {
@@ -183,6 +279,11 @@ pub struct TopicEdges {
     /// Node names, or `external: <from>`.
     pub writers: Vec<String>,
     pub readers: Vec<(String, Need)>,
+    /// The deepest queue a reader declared (the recorder's), if any: every
+    /// publisher of the topic on that reader's machine also feeds it.
+    pub queue_depth: Option<usize>,
+    /// The nodes that read the queue.
+    pub queue_readers: Vec<String>,
 }
 
 impl Graph {
@@ -208,8 +309,8 @@ impl Graph {
                 errors.push(format!("node `{}`: the name is used twice", spec.name));
                 continue;
             }
-            let Some((_, load)) = STAGE_KINDS.iter().find(|(k, _)| *k == spec.stage) else {
-                let kinds: Vec<_> = STAGE_KINDS.iter().map(|(k, _)| *k).collect();
+            let Some(kind) = STAGE_KINDS.iter().find(|e| e.kind == spec.stage) else {
+                let kinds: Vec<_> = STAGE_KINDS.iter().map(|e| e.kind).collect();
                 errors.push(format!(
                     "node `{}`: unknown stage kind `{}` (one of {})",
                     spec.name,
@@ -218,32 +319,38 @@ impl Graph {
                 ));
                 continue;
             };
-            let loaded = match &spec.config {
-                None => load(&spec.name, None, "defaults", &dir),
-                Some(ConfigSource::Inline(table)) => match toml::to_string(table) {
-                    Ok(t) => load(
-                        &spec.name,
-                        Some(&t),
-                        &format!("{} [node.config]", path.display()),
-                        &dir,
-                    ),
-                    Err(e) => Err(e.to_string()),
-                },
+            let config = match &spec.config {
+                None => Ok((None, "defaults".to_string(), dir.clone())),
+                Some(ConfigSource::Inline(table)) => toml::to_string(table)
+                    .map(|t| {
+                        let origin = format!("{} [node.config]", path.display());
+                        (Some(t), origin, dir.clone())
+                    })
+                    .map_err(|e| e.to_string()),
                 Some(ConfigSource::File(f)) => {
                     let file = dir.join(f);
                     match std::fs::read_to_string(&file) {
-                        Ok(t) => load(
-                            &spec.name,
-                            Some(&t),
-                            &file.display().to_string(),
-                            file.parent().unwrap_or(Path::new(".")),
-                        ),
+                        Ok(t) => Ok((
+                            Some(t),
+                            file.display().to_string(),
+                            file.parent().unwrap_or(Path::new(".")).to_path_buf(),
+                        )),
                         Err(e) => Err(format!("cannot read config {}: {e}", file.display())),
                     }
                 }
             };
+            let loaded = config.and_then(|(text, origin, config_dir)| {
+                let io = (kind.io)(&spec.name, text.as_deref(), &origin, &config_dir)?;
+                Ok(Node {
+                    spec: spec.clone(),
+                    io,
+                    config_text: text,
+                    config_origin: origin,
+                    config_dir,
+                })
+            });
             match loaded {
-                Ok(io) => nodes.push(Node { spec, io }),
+                Ok(node) => nodes.push(node),
                 Err(e) => errors.push(format!("node `{}` ({}): {e}", spec.name, spec.stage)),
             }
         }
@@ -274,11 +381,12 @@ impl Graph {
                     .push(n.spec.name.clone());
             }
             for r in &n.io.reads {
-                topics_map
-                    .entry(r.topic.clone())
-                    .or_default()
-                    .readers
-                    .push((n.spec.name.clone(), r.need));
+                let edges = topics_map.entry(r.topic.clone()).or_default();
+                edges.readers.push((n.spec.name.clone(), r.need));
+                if let Some(d) = r.queue_depth {
+                    edges.queue_depth = Some(edges.queue_depth.unwrap_or(0).max(d));
+                    edges.queue_readers.push(n.spec.name.clone());
+                }
             }
         }
         let mut warnings = Vec::new();
@@ -329,6 +437,22 @@ impl Graph {
                     per_machine.entry(m).or_default().1 += 1;
                 }
             }
+            let mut queued_per_machine: BTreeMap<String, usize> = BTreeMap::new();
+            for r in &edges.queue_readers {
+                if let Some(m) = machine_of(r) {
+                    *queued_per_machine.entry(m).or_default() += 1;
+                }
+            }
+            for (machine, n) in queued_per_machine {
+                // One reader, and room for its restarted self.
+                if n + 1 > QUEUE_SUBSCRIBERS {
+                    errors.push(format!(
+                        "topic `{topic}` on {machine}: {n} queue readers ({}), a queue has room for {}",
+                        edges.queue_readers.join(", "),
+                        QUEUE_SUBSCRIBERS - 1
+                    ));
+                }
+            }
             for (machine, (pubs, subs)) in per_machine {
                 if pubs > MAX_PUBLISHERS {
                     errors.push(format!(
@@ -357,6 +481,29 @@ impl Graph {
             topics: topics_map,
             warnings,
         })
+    }
+
+    /// The queues the transport keeps on `machine` (`FARSIGHT_QUEUES`,
+    /// `topic=depth,...`): those whose queue readers run there. Every
+    /// process of the graph on that machine gets the same declaration, so
+    /// each publisher of a queued topic feeds its queue.
+    pub fn queues(&self, machine: &str) -> String {
+        let on_machine = |name: &String| {
+            self.nodes
+                .iter()
+                .any(|n| n.spec.name == *name && n.spec.machine == machine)
+        };
+        self.topics
+            .iter()
+            .filter_map(|(t, e)| {
+                let d = e.queue_depth?;
+                e.queue_readers
+                    .iter()
+                    .any(on_machine)
+                    .then(|| format!("{t}={d}"))
+            })
+            .collect::<Vec<_>>()
+            .join(",")
     }
 
     /// The node and topic tables.
@@ -396,8 +543,8 @@ impl Graph {
         }
         let _ = writeln!(
             out,
-            "\n{:<34} {:<16} {:<26} readers (R required, O optional)",
-            "topic", "kind", "writer"
+            "\n{:<34} {:<16} {:<26} {:<7} readers (R required, O optional)",
+            "topic", "kind", "writer", "queue"
         );
         for (topic, e) in &self.topics {
             let readers: Vec<String> = e
@@ -409,18 +556,30 @@ impl Graph {
                 .collect();
             let _ = writeln!(
                 out,
-                "{:<34} {:<16} {:<26} {}",
+                "{:<34} {:<16} {:<26} {:<7} {}",
                 topic,
                 e.kind
                     .map(|k| format!("{k:?}"))
                     .unwrap_or_else(|| "?".into()),
                 e.writers.first().map(String::as_str).unwrap_or("-"),
+                e.queue_depth.map_or("-".to_string(), |d| d.to_string()),
                 if readers.is_empty() {
                     "-".into()
                 } else {
                     readers.join(", ")
                 }
             );
+        }
+        let base = segment_samples(MAX_SUBSCRIBERS, 1, 1);
+        for (topic, e) in &self.topics {
+            if let Some(d) = e.queue_depth {
+                let _ = writeln!(
+                    out,
+                    "queue `{topic}`: depth {d} for {}; each publisher maps {} samples for it beside the topic's {base} (shared memory = samples x message size)",
+                    e.queue_readers.join(", "),
+                    segment_samples(QUEUE_SUBSCRIBERS, d, 1)
+                );
+            }
         }
         for w in &self.warnings {
             let _ = writeln!(out, "warning: {w}");

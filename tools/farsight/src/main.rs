@@ -30,10 +30,10 @@ mod graph;
 mod hip_library;
 mod infer;
 mod inspect;
+mod lockstep;
 mod probe;
 mod recording;
 mod run;
-mod sim_tuning;
 
 use clap::{Parser, Subcommand};
 
@@ -85,8 +85,15 @@ enum Command {
 }
 
 fn main() {
-    farsight_stage::init_tracing(farsight_stage::LogFormat::Text);
     let cli = Cli::parse();
+    match &cli.command {
+        // The benchmark runs whole graphs in this process: their stages'
+        // health changes are not news there (RUST_LOG still says otherwise).
+        Command::Bench(_) => {
+            farsight_stage::init_tracing_with(farsight_stage::LogFormat::Text, "error")
+        }
+        _ => farsight_stage::init_tracing(farsight_stage::LogFormat::Text),
+    }
     let result = match cli.command {
         Command::Probe(c) => probe::run(c),
         Command::Bench(c) => bench::run(c),

@@ -55,6 +55,15 @@ pub struct RecordArgs {
     pub robot: String,
     #[command(flatten)]
     pub login: crate::Login,
+    /// Lock-step: after writing each message of this topic (the graph's
+    /// answer to a frame, e.g. cmd/velocity) and what came before it,
+    /// report its frame number on health/<--instance>; `farsight-sim run
+    /// --await-health <instance>` waits for that before its next frame.
+    #[arg(long, value_name = "TOPIC")]
+    pub ack: Option<String>,
+    /// Report on health/<INSTANCE> (with --ack: `recorder` unless given).
+    #[arg(long)]
+    pub instance: Option<String>,
     /// Print the summary of a recording instead of recording.
     #[arg(long, value_name = "FILE")]
     pub info: Option<PathBuf>,
@@ -69,6 +78,9 @@ pub fn run_record(a: RecordArgs) -> Result<()> {
         }
         return Ok(());
     }
+    if a.ack.is_some() && !a.connect.is_empty() {
+        bail!("--ack answers a lock-step simulator on this machine's shared memory; it does not go with --connect");
+    }
     let writer = RecordingWriter::create_with(&a.out, a.foxglove, !a.no_compression)?;
     let opts = RecordOptions {
         patterns: if a.topics.is_empty() {
@@ -77,6 +89,10 @@ pub fn run_record(a: RecordArgs) -> Result<()> {
             a.topics
         },
         duration: a.duration_s.map(Duration::from_secs_f64),
+        instance: a
+            .instance
+            .or_else(|| a.ack.is_some().then(|| "recorder".to_string())),
+        ack: a.ack,
         ..Default::default()
     };
     eprintln!("recording {:?} into {}", opts.patterns, a.out.display());
@@ -93,7 +109,10 @@ pub fn run_record(a: RecordArgs) -> Result<()> {
             "{topic:<34} {:>8} messages {:>10.3} MB  skipped {}",
             r.written.messages,
             r.written.bytes as f64 / 1e6,
+            // health/*: its frame number is the stage's last output, so a
+            // gap there is no lost message.
             r.skipped
+                .map_or_else(|| "(not counted)".to_string(), |n| n.to_string())
         );
     }
     println!("wrote {}", a.out.display());

@@ -15,6 +15,7 @@
 
 use crate::graph::{ConfigSource, Graph, NodeSpec, Restart};
 use anyhow::{bail, Context, Result};
+use farsight_interfaces::transport::ipc::{parse_queues, QUEUES_ENV};
 use std::os::unix::net::UnixDatagram;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -163,8 +164,25 @@ impl Supervised {
     }
 }
 
+/// The queues every node on `machine` declares to the transport: the
+/// graph's queued edges there, and those this process was started with (a
+/// demo's recorder outside the graph), the deeper where both name a topic.
+fn queues_for(graph: &Graph, machine: &str) -> Result<String> {
+    let inherited = std::env::var(QUEUES_ENV).unwrap_or_default();
+    let mut all = parse_queues(&inherited)?;
+    for (t, d) in parse_queues(&graph.queues(machine))? {
+        let e = all.entry(t).or_insert(d);
+        *e = (*e).max(d);
+    }
+    Ok(all
+        .iter()
+        .map(|(t, d)| format!("{t}={d}"))
+        .collect::<Vec<_>>()
+        .join(","))
+}
+
 /// The command that starts `spec` (the sibling binary `farsight-<stage>`).
-fn node_command(spec: &NodeSpec, graph_dir: &Path, out: &Path) -> Result<Command> {
+pub(crate) fn node_command(spec: &NodeSpec, graph_dir: &Path, out: &Path) -> Result<Command> {
     let mut cmd = Command::new(crate::demo::sibling(&format!("farsight-{}", spec.stage))?);
     crate::demo::die_with_parent(&mut cmd);
     cmd.arg("--instance").arg(&spec.name).stdin(Stdio::null());
@@ -253,6 +271,10 @@ pub fn run(a: RunArgs) -> Result<()> {
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(sig, stop.clone())?;
     }
+    let queues = queues_for(&graph, &a.machine)?;
+    if !queues.is_empty() {
+        println!("queues: {queues}");
+    }
     let mut nodes = Vec::new();
     for spec in here {
         let path = out.join("notify").join(format!("{}.sock", spec.name));
@@ -262,6 +284,8 @@ pub fn run(a: RunArgs) -> Result<()> {
         notify.set_nonblocking(true)?;
         let mut command = node_command(spec, &graph_dir, &out)?;
         command
+            .env(QUEUES_ENV, &queues)
+            .env(farsight_recording::node::RUN_OUT_ENV, &out)
             .env("NOTIFY_SOCKET", &path)
             .env("WATCHDOG_USEC", watchdog.as_micros().to_string())
             .env_remove("WATCHDOG_PID");
@@ -315,4 +339,103 @@ pub fn run(a: RunArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// `farsight run GRAPH` as a child process in the shared-memory namespace
+/// `prefix` with `queues` declared beside the graph's own (`topic=depth,...`:
+/// a recorder outside the graph), its nodes' logs and configs in `out`; returns once every node
+/// of machine `robot` has announced itself ready, or fails naming those
+/// that did not (and their logs) within `timeout`. The graph stops when the
+/// returned guard drops. What `farsight run` prints goes to `out/run.log`.
+pub fn start_graph(
+    graph: &Path,
+    out: &Path,
+    prefix: &str,
+    queues: &str,
+    timeout: Duration,
+) -> Result<crate::demo::Stage> {
+    use std::io::{BufRead, Write};
+    let g = Graph::load(graph)?;
+    let mut waiting: Vec<String> = g
+        .nodes
+        .iter()
+        .filter(|n| n.spec.machine == "robot")
+        .map(|n| n.spec.name.clone())
+        .collect();
+    std::fs::create_dir_all(out)?;
+    let mut cmd = Command::new(std::env::current_exe()?);
+    crate::demo::die_with_parent(&mut cmd);
+    let mut child = cmd
+        .arg("run")
+        .arg(graph)
+        .arg("--out")
+        .arg(out)
+        .env("FARSIGHT_IPC_PREFIX", prefix)
+        .env(QUEUES_ENV, queues)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .context("starting farsight run")?;
+    let stdout = child.stdout.take().expect("piped");
+    let stderr = child.stderr.take().expect("piped");
+    let guard = crate::demo::Stage(child);
+    let log_path = out.join("run.log");
+    let mut log = std::fs::File::create(&log_path)?;
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
+    let err_tx = tx.clone();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stderr)
+            .lines()
+            .map_while(Result::ok)
+        {
+            let _ = err_tx.send(line);
+        }
+    });
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stdout)
+            .lines()
+            .map_while(Result::ok)
+        {
+            let _ = tx.send(line);
+        }
+    });
+    let end = Instant::now() + timeout;
+    while !waiting.is_empty() {
+        let left = end.saturating_duration_since(Instant::now());
+        let line = match rx.recv_timeout(left) {
+            Ok(line) => line,
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => bail!(
+                "farsight run {} stopped before {} was ready; see {}",
+                graph.display(),
+                waiting.join(", "),
+                log_path.display()
+            ),
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => bail!(
+                "{}: {} not ready after {:.0} s; see {} and the nodes' logs in {}",
+                graph.display(),
+                waiting.join(", "),
+                timeout.as_secs_f64(),
+                log_path.display(),
+                out.display()
+            ),
+        };
+        writeln!(log, "{line}")?;
+        if let Some(name) = line.strip_suffix(": ready") {
+            waiting.retain(|w| w != name);
+        } else if let Some((name, _)) = line.split_once(": exited") {
+            bail!(
+                "{}: node `{name}` exited before it was ready; see {}",
+                graph.display(),
+                out.join(format!("{name}.log")).display()
+            );
+        }
+    }
+    // The rest of what it says goes to the log as it comes.
+    std::thread::spawn(move || {
+        for line in rx {
+            let _ = writeln!(log, "{line}");
+        }
+    });
+    Ok(guard)
 }

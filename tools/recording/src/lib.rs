@@ -37,6 +37,7 @@
 pub mod diff;
 pub mod foxglove;
 pub mod mcap_file;
+pub mod node;
 pub mod pattern;
 pub mod read;
 pub mod record;

@@ -1,17 +1,31 @@
 //! The recorder: subscribes to every topic on the bus that matches the
 //! patterns (topics that appear later are picked up within `rescan`), and
-//! writes each message it receives. Delivery is latest-value, so a recorder
-//! slower than a topic skips messages; it counts them per topic from the
-//! gaps in the sequence numbers instead of hiding them.
+//! writes each message it receives. A topic with a declared queue
+//! (`FARSIGHT_QUEUES`, from the graph's queued edges) is read from its
+//! queue: every message, in order, as long as the recorder is no more than
+//! the queue's depth behind. Other topics are latest-value, so a recorder
+//! slower than a topic skips messages. Either way it counts what it missed
+//! per topic from the gaps in the frame numbers instead of hiding them (not
+//! on `health/*`, whose frame number is the stage's last output, not a
+//! message count).
+//!
+//! In lock-step the recorder is part of the answer set ([`Ack`]): after it
+//! has written the answer to frame k (the velocity command) and everything
+//! published before it, it reports frame k on `health/<instance>`; a
+//! simulator that waits for that report (`farsight-sim run --await-health`)
+//! sends frame k+1 only then, so nothing runs ahead of the recorder and
+//! latest-value delivery loses none of the frame's messages.
 
 use crate::pattern::matches_any;
 use crate::write::{ChannelStats, RecordingWriter};
 use crate::RecordingError;
 use farsight_interfaces::clock::{Clock, WallClock};
+use farsight_interfaces::msg::{HealthState, Stamp};
 use farsight_interfaces::transport::any::{wire_stamp, AnySubscriber};
 use farsight_interfaces::transport::ipc::{self, Bus, LoopExit};
 use farsight_interfaces::transport::net::NetBus;
 use farsight_interfaces::transport::SkipCounter;
+use farsight_stage::Health;
 use std::collections::BTreeMap;
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
@@ -27,6 +41,12 @@ pub struct RecordOptions {
     pub duration: Option<Duration>,
     /// Print a progress line this often (`None`: never).
     pub progress: Option<Duration>,
+    /// The recorder's instance name: it reports on `health/<instance>`.
+    pub instance: Option<String>,
+    /// Lock-step (with `instance`): each message of this topic written (the
+    /// graph's answer to a frame) is reported, with its frame number, once
+    /// everything published before it is written too.
+    pub ack: Option<String>,
 }
 
 impl Default for RecordOptions {
@@ -36,6 +56,8 @@ impl Default for RecordOptions {
             rescan: Duration::from_millis(500),
             duration: None,
             progress: Some(Duration::from_secs(5)),
+            instance: None,
+            ack: None,
         }
     }
 }
@@ -96,7 +118,7 @@ pub fn record_zenoh(
     Ok(written
         .into_iter()
         .map(|(t, w)| {
-            let skipped = skips.get(&t).map_or(0, |s| s.skipped);
+            let skipped = frame_numbered(&t).then(|| skips.get(&t).map_or(0, |s| s.skipped));
             (
                 t,
                 TopicReport {
@@ -108,11 +130,12 @@ pub fn record_zenoh(
         .collect())
 }
 
-/// Per topic: what was written, and what latest-value delivery skipped.
+/// Per topic: what was written, and what latest-value delivery skipped
+/// (`None` where gaps in the frame numbers are not losses: `health/*`).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct TopicReport {
     pub written: ChannelStats,
-    pub skipped: u64,
+    pub skipped: Option<u64>,
 }
 
 /// Records until the duration is up or the process is told to stop; the
@@ -132,13 +155,22 @@ pub fn record(
     // Plain topic names are subscribed at once, before their publishers
     // exist: a recorder started ahead of the graph misses nothing.
     for t in opts.patterns.iter().filter(|p| !p.contains('*')) {
-        subs.push((t.clone(), AnySubscriber::open(bus, t)?));
+        subs.push((t.clone(), subscribe(bus, t)?));
     }
+    let mut health = match &opts.instance {
+        Some(instance) => {
+            let mut h = Health::new(bus, instance, 1.0)?;
+            h.set(HealthState::OK, "recording");
+            Some(h)
+        }
+        None => None,
+    };
+    let ack_topic = opts.ack.as_deref();
     let mut on_subscribed = Some(on_subscribed);
     loop {
         for t in bus.topics()? {
             if matches_any(&opts.patterns, &t) && !subs.iter().any(|(n, _)| *n == t) {
-                match AnySubscriber::open(bus, &t) {
+                match subscribe(bus, &t) {
                     Ok(s) => {
                         tracing::info!(topic = t, "recording");
                         subs.push((t, s));
@@ -154,17 +186,32 @@ pub fn record(
         let scan_at = Instant::now() + opts.rescan;
         let mut done = false;
         let exit = ipc::wait_loop(&listeners, Some(Duration::from_millis(50)), |_| {
-            for (topic, s) in &subs {
-                match s.take_wire() {
-                    Ok(Some((stamp, bytes))) => {
-                        if let Err(e) = writer.write(topic, stamp, WallClock.now_ns(), &bytes) {
-                            failure = Some(e);
-                            return ControlFlow::Break(());
-                        }
-                    }
-                    Ok(None) => {}
-                    Err(e) => tracing::warn!(topic, "dropped: {e}"),
+            let (answered, taken) = match take_all(&subs, &mut writer, ack_topic) {
+                Ok(a) => a,
+                Err(e) => {
+                    failure = Some(e);
+                    return ControlFlow::Break(());
                 }
+            };
+            if let Some(h) = &mut health {
+                (0..taken).for_each(|_| h.input());
+            }
+            if let (Some(stamp), Some(h)) = (answered, &mut health) {
+                // What was published before the answer may have come in
+                // after its topic's turn in this pass: one more pass takes
+                // it before the answer is reported.
+                match take_all(&subs, &mut writer, None) {
+                    Ok((_, taken)) => (0..taken).for_each(|_| h.input()),
+                    Err(e) => {
+                        failure = Some(e);
+                        return ControlFlow::Break(());
+                    }
+                }
+                h.output(stamp, WallClock.now_ns());
+                h.publish_now(WallClock.now_ns());
+            }
+            if let Some(h) = &mut health {
+                h.tick(WallClock.now_ns());
             }
             if opts.progress.is_some_and(|p| last_progress.elapsed() >= p) {
                 last_progress = Instant::now();
@@ -192,8 +239,12 @@ pub fn record(
             break;
         }
     }
+    if let Some(h) = &mut health {
+        h.stopping(WallClock.now_ns());
+    }
     let skipped: BTreeMap<String, u64> = subs
         .iter()
+        .filter(|(t, _)| frame_numbered(t))
         .map(|(t, s)| (t.clone(), s.skips().skipped))
         .collect();
     let written = writer.finish()?;
@@ -202,10 +253,51 @@ pub fn record(
     }
     let mut report: BTreeMap<String, TopicReport> = BTreeMap::new();
     for (t, s) in skipped {
-        report.entry(t).or_default().skipped = s;
+        report.entry(t).or_default().skipped = Some(s);
     }
     for (t, w) in written {
         report.entry(t).or_default().written = w;
     }
     Ok(report)
+}
+
+/// Takes what each subscription holds (a queue's every message, else the
+/// newest) and writes it; returns the stamp of the newest message written
+/// on `answer_topic`, and how many were written.
+fn take_all(
+    subs: &[(String, AnySubscriber)],
+    writer: &mut RecordingWriter,
+    answer_topic: Option<&str>,
+) -> Result<(Option<Stamp>, u64), RecordingError> {
+    let (mut answered, mut taken) = (None, 0);
+    for (topic, s) in subs {
+        match s.take_all_wire() {
+            Ok(messages) => {
+                for (stamp, bytes) in messages {
+                    writer.write(topic, stamp, WallClock.now_ns(), &bytes)?;
+                    taken += 1;
+                    if Some(topic.as_str()) == answer_topic {
+                        answered = Some(stamp);
+                    }
+                }
+            }
+            Err(e) => tracing::warn!(topic, "dropped: {e}"),
+        }
+    }
+    Ok((answered, taken))
+}
+
+/// A topic's queue where the bus declares one (every message, in order),
+/// else its latest value.
+fn subscribe(bus: &Bus, topic: &str) -> Result<AnySubscriber, RecordingError> {
+    Ok(match bus.queue_depth(topic) {
+        Some(_) => AnySubscriber::open_queued(bus, topic)?,
+        None => AnySubscriber::open(bus, topic)?,
+    })
+}
+
+/// Whether a gap in `topic`'s frame numbers is a lost message: not on
+/// `health/*`, whose frame number is the stage's last output.
+pub fn frame_numbered(topic: &str) -> bool {
+    !topic.starts_with("health/")
 }

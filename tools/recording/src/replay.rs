@@ -7,7 +7,11 @@
 //!
 //! Nothing is dropped silently: with answer topics named, every frame of
 //! the driving topic that some answer topic never carried (a stage skipped
-//! it, or answered too late in lock-step) is listed in the report. The
+//! it, or answered too late in lock-step) is listed in the report. An
+//! answer topic with a declared queue (`FARSIGHT_QUEUES`) is read from it,
+//! so the replay itself misses no answer however late it gets to look; a
+//! latest-value answer topic read by a descheduled replay can hide an
+//! answer under the next one, and is listed as not consumed. The
 //! answers can be written to a recording as they are taken: in lock-step
 //! each stage answers a frame before the next goes out, so that recording
 //! holds every output of every frame (the golden tests compare it).
@@ -159,7 +163,9 @@ impl Answers {
     /// Takes whatever each answer topic has now, into `out` when given.
     fn take(&mut self, out: &mut Option<&mut RecordingWriter>) -> Result<(), RecordingError> {
         for (topic, sub, seen, count) in &mut self.topics {
-            if let Some((stamp, bytes)) = sub.take_wire()? {
+            // A queue subscriber hands over every answer since the last
+            // look, a latest-value one at most the newest.
+            for (stamp, bytes) in sub.take_all_wire()? {
                 seen.insert(stamp.frame_seq);
                 *count += 1;
                 if let Some(w) = out.as_deref_mut() {
@@ -233,7 +239,13 @@ pub fn replay(
         topics: opts
             .answer_topics
             .iter()
-            .map(|t| Ok((t.clone(), AnySubscriber::open(bus, t)?, BTreeSet::new(), 0)))
+            .map(|t| {
+                let sub = match bus.queue_depth(t) {
+                    Some(_) => AnySubscriber::open_queued(bus, t)?,
+                    None => AnySubscriber::open(bus, t)?,
+                };
+                Ok((t.clone(), sub, BTreeSet::new(), 0))
+            })
             .collect::<Result<Vec<_>, RecordingError>>()?,
     };
     // The graph's subscribers find new publishers when they next look;

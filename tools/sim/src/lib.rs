@@ -33,4 +33,5 @@ pub mod robot;
 pub mod run;
 pub mod scenario;
 pub mod sensor;
+pub mod sim_robot;
 pub mod world;

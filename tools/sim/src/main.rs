@@ -43,10 +43,13 @@ enum Command {
     },
     /// Join the stage graph as the robot and drive the scenario.
     Run(RunArgs),
-    /// Renderer frames per second at 640x360 on one core, per scenario.
+    /// Renderer frames per second at 640x360, per scenario.
     Bench {
         #[arg(long, default_value_t = 60)]
         frames: usize,
+        /// Column bands rendered at once (default: the cores, at most 4).
+        #[arg(long)]
+        threads: Option<usize>,
     },
 }
 
@@ -147,12 +150,18 @@ fn main() -> Result<()> {
                 out.display()
             );
         }
-        Command::Bench { frames } => {
-            println!("renderer at 640x360, one core, {frames} frames per scenario (one run, this machine):\n");
+        Command::Bench { frames, threads } => {
+            let cam = front_camera(640, 360);
+            let mut r = Renderer::new(&cam, 150.0);
+            if let Some(t) = threads {
+                r.threads = t;
+            }
+            println!(
+                "renderer at 640x360, {} column bands, {frames} frames per scenario (one run, this machine):\n",
+                r.threads
+            );
             println!("| scenario | frames/s | ms/frame |");
             println!("|---|---|---|");
-            let cam = front_camera(640, 360);
-            let r = Renderer::new(&cam, 150.0);
             let mut f = Frame::default();
             for name in [
                 "bug-trap",

@@ -42,7 +42,8 @@ pub const PALETTE: [[u8; 3]; class::COUNT] = [
 ];
 
 /// Per-camera tables: each column's azimuth, and per pixel the tangent of
-/// its elevation and the factor from horizontal distance to optical depth.
+/// its elevation and the factor from horizontal distance to optical depth
+/// (column-major, `u * height + v`: a ray walks its column).
 pub struct Renderer {
     camera: Camera,
     width: usize,
@@ -50,7 +51,13 @@ pub struct Renderer {
     azimuth_rad: Vec<f64>,
     tan_elevation: Vec<f64>,
     depth_per_m: Vec<f64>,
+    /// Each row's sky colour (lighter toward the horizon).
+    sky_rgb: Vec<[u8; 3]>,
     pub max_range_m: f64,
+    /// Bands of columns rendered at once: this machine's cores, at most 4.
+    pub threads: usize,
+    /// Each band's column-major pixels, kept between frames.
+    scratch: Vec<Frame>,
 }
 
 impl Renderer {
@@ -67,11 +74,17 @@ impl Renderer {
                 let r = camera.mount.robot_from_optical * optical;
                 let horizontal = r.x.hypot(r.y);
                 if horizontal > 1e-9 && optical.z > 0.0 {
-                    tan_elevation[v * width + u] = r.z / horizontal;
-                    depth_per_m[v * width + u] = optical.z / horizontal;
+                    tan_elevation[u * height + v] = r.z / horizontal;
+                    depth_per_m[u * height + v] = optical.z / horizontal;
                 }
             }
         }
+        let sky_rgb = (0..height)
+            .map(|v| {
+                let up = (v as f64 / height as f64).clamp(0.0, 1.0);
+                shaded(class::SKY, 0.85 + 0.15 * up, 0.0)
+            })
+            .collect();
         Self {
             camera: camera.clone(),
             width,
@@ -79,7 +92,10 @@ impl Renderer {
             azimuth_rad,
             tan_elevation,
             depth_per_m,
+            sky_rgb,
             max_range_m,
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get().min(4)),
+            scratch: Vec::new(),
         }
     }
 
@@ -88,7 +104,27 @@ impl Renderer {
     }
 
     /// Renders the view from a robot at `pose` (x, y, yaw) into `out`.
-    pub fn render(&self, world: &World, pose: [f64; 3], out: &mut Frame) {
+    ///
+    /// Columns are independent rays: the frame is cut into one band of
+    /// columns per core ([`Self::threads`]), each marched into column-major
+    /// scratch, then copied into the row-major frame [`COLUMN_BLOCK`]
+    /// columns at a time (writing a row-major frame one column at a time
+    /// touches a new cache line for every pixel). The result does not depend
+    /// on the number of bands.
+    pub fn render(&mut self, world: &World, pose: [f64; 3], out: &mut Frame) {
+        self.render_channels(world, pose, out, Channels::ALL);
+    }
+
+    /// [`Self::render`] filling only `channels` of `out` (the others keep
+    /// their size and whatever they held): copying a channel nobody reads
+    /// into the frame was most of a frame's cost.
+    pub fn render_channels(
+        &mut self,
+        world: &World,
+        pose: [f64; 3],
+        out: &mut Frame,
+        channels: Channels,
+    ) {
         let (w, h) = (self.width, self.height);
         out.width = w;
         out.height = h;
@@ -100,114 +136,204 @@ impl Renderer {
         let cam = [pose[0] + c * m.x - s * m.y, pose[1] + s * m.x + c * m.y];
         let (rx, ry) = world.cell_of(pose[0], pose[1]);
         let cam_z = world.ground_m(rx, ry) as f64 + m.z;
-        let res = world.resolution_m;
-        for u in 0..w {
-            let a = pose[2] + self.azimuth_rad[u];
-            let (dx, dy) = (a.cos(), a.sin());
-            // Rows are filled from the bottom (v = h - 1) up; `next` is the
-            // lowest row not yet drawn.
-            let mut next = h as isize - 1;
-            // Grid DDA from the camera's cell (cells are centred on multiples of res).
-            let (mut cx, mut cy) = world.cell_of(cam[0], cam[1]);
-            let step_x = if dx >= 0.0 { 1 } else { -1 };
-            let step_y = if dy >= 0.0 { 1 } else { -1 };
-            let edge = |cell: i64, step: i64| (cell as f64 + 0.5 * step as f64) * res;
-            let mut t_max_x = if dx.abs() > 1e-12 {
-                (edge(cx, step_x) - cam[0]) / dx
-            } else {
-                f64::INFINITY
-            };
-            let mut t_max_y = if dy.abs() > 1e-12 {
-                (edge(cy, step_y) - cam[1]) / dy
-            } else {
-                f64::INFINITY
-            };
-            let t_dx = if dx.abs() > 1e-12 {
-                res / dx.abs()
-            } else {
-                f64::INFINITY
-            };
-            let t_dy = if dy.abs() > 1e-12 {
-                res / dy.abs()
-            } else {
-                f64::INFINITY
-            };
-            let mut t_in = 0.0f64;
-            let mut side_x = true;
-            while next >= 0 && t_in < self.max_range_m {
-                let t_out = t_max_x.min(t_max_y);
-                let look = world.look(cx, cy);
-                let ground = look.ground_m as f64 - cam_z;
-                let near = t_in.max(0.05);
-                let ground_tan = ground / t_out;
-                let stands = look.top_m > look.ground_m;
-                let face_lo = ground / near;
-                let face_hi = (look.top_m as f64 - cam_z) / near;
-                let cover_tan = if stands {
-                    face_hi.max(ground_tan)
-                } else {
-                    ground_tan
-                };
-                let haze = (t_in / self.max_range_m).min(1.0).powi(2) * 0.6;
-                let noise = crate::rng::cell_noise(cx, cy, 17);
-                while next >= 0 {
-                    let i = next as usize * w + u;
-                    let te = self.tan_elevation[i];
-                    if te > cover_tan {
-                        break;
+        let band = w.div_ceil(self.threads.max(1)).max(1);
+        let mut scratch = std::mem::take(&mut self.scratch);
+        scratch.resize_with(w.div_ceil(band), Frame::default);
+        let this = &*self;
+        let march = |k: usize, col: &mut Frame| {
+            let u0 = k * band;
+            let n = band.min(w - u0);
+            col.width = n;
+            col.height = h;
+            col.rgb.resize(n * h * 3, 0);
+            col.depth_m.resize(n * h, 0.0);
+            col.class_ids.resize(n * h, 0);
+            for j in 0..n {
+                this.march_column(world, pose[2], cam, cam_z, u0 + j, col, j * h);
+            }
+        };
+        std::thread::scope(|scope| {
+            let (first, others) = scratch.split_first_mut().expect("one band at least");
+            for (k, col) in others.iter_mut().enumerate() {
+                scope.spawn(move || march(k + 1, col));
+            }
+            march(0, first);
+        });
+        for (k, col) in scratch.iter().enumerate() {
+            let u0 = k * band;
+            for b0 in (0..col.width).step_by(COLUMN_BLOCK) {
+                let n = COLUMN_BLOCK.min(col.width - b0);
+                for v in 0..h {
+                    let (from, to) = (b0 * h + v, v * w + u0 + b0);
+                    let pixels = (0..n).map(|j| (from + j * h, to + j));
+                    if channels.rgb {
+                        for (from, to) in pixels.clone() {
+                            out.rgb[to * 3..to * 3 + 3]
+                                .copy_from_slice(&col.rgb[from * 3..from * 3 + 3]);
+                        }
                     }
-                    let on_face = stands && te >= face_lo;
-                    let (class_id, t_hit, shade) = if on_face {
-                        (look.top_class, near, if side_x { 0.78 } else { 0.95 })
-                    } else {
-                        // Where the ray meets this cell's ground (clamped into the cell).
-                        let t = if te < 0.0 {
-                            (ground / te).clamp(near, t_out)
-                        } else {
-                            t_out
-                        };
-                        (look.ground_class, t, 0.8 + 0.35 * noise)
-                    };
-                    write_pixel(
-                        out,
-                        i,
-                        class_id,
-                        shade,
-                        haze,
-                        (t_hit * self.depth_per_m[i]) as f32,
-                    );
-                    next -= 1;
-                }
-                // Step to the next cell.
-                t_in = t_out;
-                if t_max_x < t_max_y {
-                    cx += step_x;
-                    t_max_x += t_dx;
-                    side_x = true;
-                } else {
-                    cy += step_y;
-                    t_max_y += t_dy;
-                    side_x = false;
+                    if channels.class_ids {
+                        for (from, to) in pixels.clone() {
+                            out.class_ids[to] = col.class_ids[from];
+                        }
+                    }
+                    if channels.depth {
+                        for (from, to) in pixels {
+                            out.depth_m[to] = col.depth_m[from];
+                        }
+                    }
                 }
             }
+        }
+        self.scratch = scratch;
+    }
+
+    /// Column `u`'s ray from the camera at `cam` (height `cam_z`), written
+    /// into `col` from pixel `at` on (its rows in order, `at + v`).
+    #[allow(clippy::too_many_arguments)]
+    fn march_column(
+        &self,
+        world: &World,
+        yaw_rad: f64,
+        cam: [f64; 2],
+        cam_z: f64,
+        u: usize,
+        col: &mut Frame,
+        at: usize,
+    ) {
+        let h = self.height;
+        let res = world.resolution_m;
+        let table = u * h;
+        let a = yaw_rad + self.azimuth_rad[u];
+        let (dx, dy) = (a.cos(), a.sin());
+        // Rows are filled from the bottom (v = h - 1) up; `next` is the
+        // lowest row not yet drawn.
+        let mut next = h as isize - 1;
+        // Grid DDA from the camera's cell (cells are centred on multiples of res).
+        let (mut cx, mut cy) = world.cell_of(cam[0], cam[1]);
+        let step_x = if dx >= 0.0 { 1 } else { -1 };
+        let step_y = if dy >= 0.0 { 1 } else { -1 };
+        let edge = |cell: i64, step: i64| (cell as f64 + 0.5 * step as f64) * res;
+        let mut t_max_x = if dx.abs() > 1e-12 {
+            (edge(cx, step_x) - cam[0]) / dx
+        } else {
+            f64::INFINITY
+        };
+        let mut t_max_y = if dy.abs() > 1e-12 {
+            (edge(cy, step_y) - cam[1]) / dy
+        } else {
+            f64::INFINITY
+        };
+        let t_dx = if dx.abs() > 1e-12 {
+            res / dx.abs()
+        } else {
+            f64::INFINITY
+        };
+        let t_dy = if dy.abs() > 1e-12 {
+            res / dy.abs()
+        } else {
+            f64::INFINITY
+        };
+        let mut t_in = 0.0f64;
+        let mut side_x = true;
+        while next >= 0 && t_in < self.max_range_m {
+            let t_out = t_max_x.min(t_max_y);
+            let look = world.look(cx, cy);
+            let ground = look.ground_m as f64 - cam_z;
+            let near = t_in.max(0.05);
+            let ground_tan = ground / t_out;
+            let stands = look.top_m > look.ground_m;
+            let face_lo = ground / near;
+            let face_hi = (look.top_m as f64 - cam_z) / near;
+            let cover_tan = if stands {
+                face_hi.max(ground_tan)
+            } else {
+                ground_tan
+            };
+            let haze = || (t_in / self.max_range_m).min(1.0).powi(2) * 0.6;
+            // A cell's face and its ground each have one colour: shade
+            // them once, not per pixel (most of a frame is ground).
+            let face_shade = if side_x { 0.78 } else { 0.95 };
+            let (mut face_rgb, mut ground_rgb) = (None, None);
             while next >= 0 {
-                let i = next as usize * w + u;
-                // Sky: lighter toward the horizon.
-                let up = (next as f64 / h as f64).clamp(0.0, 1.0);
-                write_pixel(out, i, class::SKY, 0.85 + 0.15 * up, 0.0, f32::INFINITY);
+                let v = next as usize;
+                let te = self.tan_elevation[table + v];
+                if te > cover_tan {
+                    break;
+                }
+                let on_face = stands && te >= face_lo;
+                let (class_id, t_hit, rgb) = if on_face {
+                    let rgb =
+                        *face_rgb.get_or_insert_with(|| shaded(look.top_class, face_shade, haze()));
+                    (look.top_class, near, rgb)
+                } else {
+                    // Where the ray meets this cell's ground (clamped into the cell).
+                    let t = if te < 0.0 {
+                        (ground / te).clamp(near, t_out)
+                    } else {
+                        t_out
+                    };
+                    let rgb = *ground_rgb.get_or_insert_with(|| {
+                        let noise = crate::rng::cell_noise(cx, cy, 17);
+                        shaded(look.ground_class, 0.8 + 0.35 * noise, haze())
+                    });
+                    (look.ground_class, t, rgb)
+                };
+                let depth_m = (t_hit * self.depth_per_m[table + v]) as f32;
+                write_pixel(col, at + v, class_id, rgb, depth_m);
                 next -= 1;
             }
+            // Step to the next cell.
+            t_in = t_out;
+            if t_max_x < t_max_y {
+                cx += step_x;
+                t_max_x += t_dx;
+                side_x = true;
+            } else {
+                cy += step_y;
+                t_max_y += t_dy;
+                side_x = false;
+            }
+        }
+        while next >= 0 {
+            let v = next as usize;
+            write_pixel(col, at + v, class::SKY, self.sky_rgb[v], f32::INFINITY);
+            next -= 1;
         }
     }
 }
 
-fn write_pixel(out: &mut Frame, i: usize, class_id: u8, shade: f64, haze: f64, depth_m: f32) {
+/// The parts of a [`Frame`] a render fills.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Channels {
+    pub rgb: bool,
+    pub depth: bool,
+    pub class_ids: bool,
+}
+
+impl Channels {
+    pub const ALL: Self = Self {
+        rgb: true,
+        depth: true,
+        class_ids: true,
+    };
+}
+
+/// Columns copied into the row-major frame together.
+const COLUMN_BLOCK: usize = 16;
+
+/// A class's colour, lit by `shade` and faded toward the sky by `haze`.
+fn shaded(class_id: u8, shade: f64, haze: f64) -> [u8; 3] {
     let base = PALETTE[class_id as usize];
     let sky = PALETTE[class::SKY as usize];
-    for k in 0..3 {
+    std::array::from_fn(|k| {
         let lit = base[k] as f64 * shade;
-        out.rgb[i * 3 + k] = (lit * (1.0 - haze) + sky[k] as f64 * haze).clamp(0.0, 255.0) as u8;
-    }
+        (lit * (1.0 - haze) + sky[k] as f64 * haze).clamp(0.0, 255.0) as u8
+    })
+}
+
+fn write_pixel(out: &mut Frame, i: usize, class_id: u8, rgb: [u8; 3], depth_m: f32) {
+    out.rgb[i * 3..i * 3 + 3].copy_from_slice(&rgb);
     out.class_ids[i] = class_id;
     out.depth_m[i] = depth_m;
 }
@@ -231,7 +357,7 @@ mod tests {
     fn flat_ground_depth_and_sky_are_exact() {
         let world = World::new(200, 200, Cover::Grass);
         let cam = level_camera();
-        let r = Renderer::new(&cam, 150.0);
+        let mut r = Renderer::new(&cam, 150.0);
         let mut f = Frame::default();
         r.render(&world, [100.0, 100.0, 0.0], &mut f);
         // Row v below the centre sees the ground at z = f * h / (v - cy).
@@ -249,12 +375,45 @@ mod tests {
     }
 
     #[test]
+    fn bands_and_channels_do_not_change_a_pixel() {
+        let mut world = World::new(200, 200, Cover::Grass);
+        world.line_obstacle((110, 80), (110, 120), Obstacle::Wall);
+        world.fill_cover(103, 99, 106, 104, Cover::Bushes);
+        let cam = level_camera();
+        let mut one = Renderer::new(&cam, 150.0);
+        one.threads = 1;
+        let mut full = Frame::default();
+        one.render(&world, [100.0, 101.3, 0.2], &mut full);
+        for threads in [2, 3, 64] {
+            let mut r = Renderer::new(&cam, 150.0);
+            r.threads = threads;
+            let mut f = Frame::default();
+            r.render(&world, [100.0, 101.3, 0.2], &mut f);
+            assert_eq!(
+                (&f.rgb, &f.class_ids, &f.depth_m),
+                (&full.rgb, &full.class_ids, &full.depth_m),
+                "{threads} bands"
+            );
+        }
+        let mut rgb_only = Frame::default();
+        let only = Channels {
+            rgb: true,
+            depth: false,
+            class_ids: false,
+        };
+        one.render_channels(&world, [100.0, 101.3, 0.2], &mut rgb_only, only);
+        assert_eq!(rgb_only.rgb, full.rgb);
+        assert!(rgb_only.class_ids.iter().all(|&c| c == 0), "not filled");
+        assert!(full.class_ids.contains(&class::WALL) && full.class_ids.contains(&class::BUSHES));
+    }
+
+    #[test]
     fn a_wall_ahead_fills_its_rows_at_its_distance() {
         let mut world = World::new(200, 200, Cover::Grass);
         // A wall across x = 110 (10 m ahead; its near face is at 9.5 m).
         world.line_obstacle((110, 80), (110, 120), Obstacle::Wall);
         let cam = level_camera();
-        let r = Renderer::new(&cam, 150.0);
+        let mut r = Renderer::new(&cam, 150.0);
         let mut f = Frame::default();
         r.render(&world, [100.0, 100.0, 0.0], &mut f);
         // The wall is 2.5 m tall, the camera 1 m up: it spans from the ground at

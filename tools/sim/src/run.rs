@@ -12,19 +12,19 @@
 //! navigability of road, trail, grass and field), standing in for the
 //! inference stage; it is a named mode, never the default.
 
-use crate::episode::{Episode, EpisodeConfig, Outcome, PoseLog, Summary};
-use crate::render::{Frame, Renderer};
+use crate::episode::{Outcome, PoseLog, Summary};
 use crate::rng::SplitMix64;
-use crate::scenario::scenario;
-use crate::sensor::NearFieldSensor;
+use crate::sim_robot::{SimOptions, SimRobot};
 use crate::world::class;
 use anyhow::{Context, Result};
 use farsight_interfaces::camera::{Camera, CameraModel, Mount};
+use farsight_interfaces::message::Message;
 use farsight_interfaces::msg::{
-    CameraInfo, GoalKind, ImageHeader, NavGoal, PixelEncoding, Pose, Stamp, VelocityCommand,
+    CostCell, ImageHeader, PixelEncoding, PolarCell, Stamp, VelocityCommand, MAX_RANGE_EDGES,
 };
 use farsight_interfaces::topics;
-use farsight_interfaces::transport::ipc::{Bus, Publisher, SlicePublisher};
+use farsight_interfaces::transport::any::AnyPublisher;
+use farsight_interfaces::transport::ipc::Bus;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -77,6 +77,11 @@ pub struct RunArgs {
     /// Publish the rendered class image as perception/<camera>/navigability.
     #[arg(long)]
     pub oracle: bool,
+    /// Publish FITAM's far field labelled from the true world as
+    /// `bins/polar` (the "GT labels" row), standing in for inference and bin
+    /// projection.
+    #[arg(long)]
+    pub far_field_oracle: bool,
     /// Lock-step: how long to wait for the graph's command before driving
     /// the frame with none (counted as a late command). Simulated time
     /// stands still while the graph works, so a slow or busy machine is
@@ -86,6 +91,12 @@ pub struct RunArgs {
     /// and changed the track.
     #[arg(long, default_value_t = 10.0)]
     pub command_timeout_s: f64,
+    /// Lock-step: also wait, after the command, for these instances to
+    /// report the frame on health/<name> (the recorder, `farsight record
+    /// --ack`), so nothing runs ahead of them. One that does not answer in
+    /// --command-timeout-s is warned about and no longer waited for.
+    #[arg(long, value_delimiter = ',')]
+    pub await_health: Vec<String>,
     /// The simulated base obeys each command for its time-to-live from
     /// receipt (`ttl_ms`), at most this long (s), then stops: a dead or
     /// frozen command writer stops the robot (farsight_interfaces::base).
@@ -107,24 +118,57 @@ pub struct RunArgs {
     pub record_every: u64,
 }
 
+/// An instance the lock-step loop waits for after each command
+/// (`--await-health`): it reports the frame it has taken in as its health
+/// report's frame number.
+struct AwaitedAnswer {
+    name: String,
+    health: farsight_interfaces::transport::ipc::Subscriber<farsight_interfaces::msg::StageHealth>,
+    answered: u64,
+    given_up: bool,
+}
+
+impl AwaitedAnswer {
+    fn open(bus: &Bus, name: &str) -> Result<Self> {
+        Ok(Self {
+            name: name.to_string(),
+            health: bus.subscriber(&topics::health(name))?,
+            answered: 0,
+            given_up: false,
+        })
+    }
+
+    /// Waits until frame `k` is reported, at most `timeout`; one that does
+    /// not answer in time is not waited for again (a dead recorder must not
+    /// slow the drive by a timeout per frame).
+    fn wait_for(&mut self, k: u64, timeout: Duration, bus: &Bus) -> Result<()> {
+        let end = Instant::now() + timeout;
+        while !self.given_up && self.answered < k {
+            if let Some(h) = self.health.latest()? {
+                self.answered = self.answered.max(h.stamp.frame_seq);
+                continue;
+            }
+            if Instant::now() >= end || bus.termination_requested() {
+                eprintln!(
+                    "frame {k}: health/{} did not report it in {:.1} s; not waiting for it any more",
+                    self.name,
+                    timeout.as_secs_f64()
+                );
+                self.given_up = true;
+            } else {
+                std::thread::sleep(Duration::from_micros(200));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// The simulator's own recording (see `--record`).
 struct SimRecorder(farsight_recording::write::RecordingWriter);
 
 impl SimRecorder {
     fn message<M: serde::Serialize>(&mut self, topic: &str, stamp: Stamp, msg: &M) -> Result<()> {
         let bytes = farsight_interfaces::transport::wire::encode_message(msg)?;
-        self.0.write(topic, stamp, stamp.capture_time_ns, &bytes)?;
-        Ok(())
-    }
-
-    fn slice<H: serde::Serialize, E: bytemuck::Pod>(
-        &mut self,
-        topic: &str,
-        stamp: Stamp,
-        header: &H,
-        data: &[E],
-    ) -> Result<()> {
-        let bytes = farsight_interfaces::transport::wire::encode_slice(header, data)?;
         self.0.write(topic, stamp, stamp.capture_time_ns, &bytes)?;
         Ok(())
     }
@@ -176,85 +220,6 @@ pub fn named_camera(name: &str, width: u32, height: u32) -> Result<Camera> {
     ))
 }
 
-/// One simulated camera: its renderer, its last frame and its publishers.
-struct CameraRig {
-    camera: Camera,
-    renderer: Renderer,
-    frame: Frame,
-    images: SlicePublisher<ImageHeader, u8>,
-    depths: SlicePublisher<ImageHeader, u8>,
-    infos: Publisher<CameraInfo>,
-    oracle: Option<SlicePublisher<ImageHeader, u8>>,
-}
-
-impl CameraRig {
-    fn open(bus: &Bus, camera: Camera, oracle: bool) -> Result<Self> {
-        let (w, h) = (camera.model.width as usize, camera.model.height as usize);
-        let name = camera.name.as_str();
-        Ok(Self {
-            renderer: Renderer::new(&camera, 150.0),
-            frame: Frame::default(),
-            images: bus.slice_publisher(&topics::camera_image(name), w * h * 3)?,
-            depths: bus.slice_publisher(&topics::depth(name), w * h * 4)?,
-            infos: bus.publisher(&topics::camera_info(name))?,
-            oracle: if oracle {
-                Some(bus.slice_publisher(&topics::navigability(name), w * h)?)
-            } else {
-                None
-            },
-            camera,
-        })
-    }
-
-    /// Writes the last rendered frame's image and camera model.
-    fn record(&self, rec: &mut SimRecorder, stamp: Stamp) -> Result<()> {
-        let (w, h) = (self.camera.model.width, self.camera.model.height);
-        rec.message(
-            topics::camera_info(&self.camera.name).name(),
-            stamp,
-            &self.camera.to_info(stamp),
-        )?;
-        rec.slice(
-            topics::camera_image(&self.camera.name).name(),
-            stamp,
-            &ImageHeader::packed(stamp, self.camera.id, w, h, PixelEncoding::RGB8),
-            &self.frame.rgb,
-        )
-    }
-
-    /// Renders the robot's view and publishes info, depth, the oracle's
-    /// navigability and the image (last: a stage woken by the image finds
-    /// the rest already there). Depth and navigability are written straight
-    /// into the shared-memory samples: no per-frame buffers.
-    fn publish(&mut self, world: &crate::world::World, pose: [f64; 3], stamp: Stamp) -> Result<()> {
-        let (w, h) = (self.camera.model.width, self.camera.model.height);
-        let n = w as usize * h as usize;
-        let id = self.camera.id;
-        self.renderer.render(world, pose, &mut self.frame);
-        self.infos.publish(&self.camera.to_info(stamp))?;
-        let frame = &self.frame;
-        self.depths.publish_with(n * 4, |buf| {
-            for (b, d) in buf.chunks_exact_mut(4).zip(&frame.depth_m) {
-                b.copy_from_slice(&d.to_le_bytes());
-            }
-            ImageHeader::packed(stamp, id, w, h, PixelEncoding::F32)
-        })?;
-        if let Some(o) = &self.oracle {
-            o.publish_with(n, |buf| {
-                for (b, &c) in buf.iter_mut().zip(&frame.class_ids) {
-                    *b = if navigable_class(c) { 255 } else { 0 };
-                }
-                ImageHeader::packed(stamp, id, w, h, PixelEncoding::MONO8)
-            })?;
-        }
-        self.images.publish_copy(
-            ImageHeader::packed(stamp, id, w, h, PixelEncoding::RGB8),
-            &frame.rgb,
-        )?;
-        Ok(())
-    }
-}
-
 /// A frame's capture time on the simulated clock (the stamps' time base,
 /// which the servo's `clock = "stamps"` measures its ramps on).
 pub fn capture_time_ns(time_s: f64) -> u64 {
@@ -302,31 +267,62 @@ pub fn navigable_class(c: u8) -> bool {
     matches!(c, class::ROAD | class::TRAIL | class::GRASS | class::FIELD)
 }
 
+impl RunArgs {
+    /// The simulated robot these arguments describe.
+    pub fn sim_options(&self) -> SimOptions {
+        SimOptions {
+            scenario: self.scenario.clone(),
+            seed: self.seed,
+            rate_hz: self.rate_hz,
+            max_time_s: self.max_time_s,
+            width: self.width,
+            height: self.height,
+            pose_noise_m: self.pose_noise_m,
+            yaw_noise_deg: self.yaw_noise_deg,
+            cameras: self.cameras.clone(),
+            oracle: self.oracle,
+            far_field_oracle: self.far_field_oracle,
+            base_max_ttl_s: self.base_max_ttl_s,
+        }
+    }
+}
+
+/// The most bytes one message of a topic the simulator publishes carries.
+fn max_slice_bytes(topic: &str, (w, h): (u32, u32), local_side: usize) -> usize {
+    let pixels = w as usize * h as usize;
+    match topic.rsplit('/').next() {
+        Some("image") => pixels * 3,
+        Some("depth") => pixels * 4,
+        Some("navigability") => pixels,
+        Some("local") => local_side * local_side * std::mem::size_of::<CostCell>(),
+        Some("polar") => 360 * (MAX_RANGE_EDGES - 1) * std::mem::size_of::<PolarCell>(),
+        _ => 0,
+    }
+}
+
 pub fn run(a: RunArgs) -> Result<Summary> {
-    let s = scenario(&a.scenario, a.seed)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let sensor = NearFieldSensor::default();
+    let mut sim = SimRobot::new(&a.sim_options())?;
     let bus = Bus::open("sim")?;
-    anyhow::ensure!(!a.cameras.is_empty(), "--cameras: name at least one camera");
-    let mut rigs = a
-        .cameras
-        .iter()
-        .map(|name| CameraRig::open(&bus, named_camera(name, a.width, a.height)?, a.oracle))
-        .collect::<Result<Vec<_>>>()?;
-    let poses = bus.publisher(&topics::pose())?;
+    // One publisher per topic the simulator senses, opened before it
+    // announces itself: the first frame's every message has a port.
+    let mut publishers = std::collections::BTreeMap::new();
+    for topic in sim.topics() {
+        let bytes = max_slice_bytes(&topic, (a.width, a.height), sim.local_costmap_side());
+        let port = AnyPublisher::open(&bus, &topic, bytes)?;
+        publishers.insert(topic, port);
+    }
     let goals = bus.publisher(&topics::goal())?;
-    let side = (2.0 * sensor.range_m + 1.0) as usize;
-    let locals = bus.slice_publisher(&topics::costmap("local"), side * side)?;
     let commands = bus.subscriber(&topics::velocity_command())?;
-    let goal = NavGoal {
-        kind: GoalKind::LOCAL,
-        x_m: s.goal[0],
-        y_m: s.goal[1],
-        tolerance_m: 2.0,
-        ..Default::default()
-    };
+    let mut awaited = a
+        .await_health
+        .iter()
+        .map(|name| AwaitedAnswer::open(&bus, name))
+        .collect::<Result<Vec<_>>>()?;
+    let goal = sim.goal();
     goals.publish(&goal)?;
     println!("farsight-sim ready");
+    let s = &sim.episode.scenario;
     eprintln!(
         "{}: start ({:.0}, {:.0}), goal ({:.0}, {:.0}), {:.0} m away; clock {:?}",
         s.name,
@@ -338,36 +334,18 @@ pub fn run(a: RunArgs) -> Result<Summary> {
         a.clock
     );
 
-    let cfg = EpisodeConfig {
-        max_time_s: a.max_time_s,
-        ..Default::default()
-    };
-    let mut episode = Episode::new(s, cfg);
     let trace_path = a.out.join("poses.csv");
     let mut trace = PoseLog::create(&trace_path)
         .with_context(|| format!("creating {}", trace_path.display()))?;
     let dt = 1.0 / a.rate_hz;
     let mut late = 0u32;
-    anyhow::ensure!(
-        a.base_max_ttl_s.is_finite() && a.base_max_ttl_s > 0.0,
-        "--base-max-ttl-s {}: expected a positive time in seconds (the base would never move)",
-        a.base_max_ttl_s
-    );
-    let mut base = farsight_interfaces::base::CommandGate::new(a.base_max_ttl_s);
-    anyhow::ensure!(
-        a.pose_noise_m >= 0.0 && a.yaw_noise_deg >= 0.0,
-        "--pose-noise-m {} / --yaw-noise-deg {}: noise must be 0 or more",
-        a.pose_noise_m,
-        a.yaw_noise_deg
-    );
-    let mut noise = SplitMix64::new(a.seed ^ 0x9053);
     let mut expert = match a.drive {
         Drive::Graph => None,
         Drive::Expert => Some(
             crate::expert::Expert::new(
-                &episode.scenario.world,
-                [episode.robot.x_m, episode.robot.y_m],
-                episode.scenario.goal,
+                &sim.episode.scenario.world,
+                [sim.episode.robot.x_m, sim.episode.robot.y_m],
+                sim.episode.scenario.goal,
                 1.5,
             )
             .with_context(|| {
@@ -396,70 +374,56 @@ pub fn run(a: RunArgs) -> Result<Summary> {
             eprintln!("stopped: termination requested");
             break;
         }
-        let r = episode.robot;
+        let r = sim.episode.robot;
         // Lock-step: the simulated clock (the graph runs on the stamps'
         // clock). Real time: the wall clock, as a robot's camera stamps its
         // frames, so stages on the wall clock judge their age truly.
-        let stamp = Stamp::new(
-            k,
-            match a.clock {
-                ClockMode::Lockstep => capture_time_ns(episode.time_s),
-                ClockMode::Realtime => farsight_interfaces::clock::Clock::now_ns(
-                    &farsight_interfaces::clock::WallClock,
-                ),
-            },
-        );
-        let [px, py, pyaw] = reported_pose(
-            r.pose(),
-            a.pose_noise_m,
-            a.yaw_noise_deg.to_radians(),
-            &mut noise,
-        );
-        // Height is the ground under the robot (the camera rides on it), so
-        // recorded trajectories project into past frames on hills too.
-        let (cx, cy) = episode.scenario.world.cell_of(r.x_m, r.y_m);
-        let ground_m = episode.scenario.world.ground_m(cx, cy) as f64;
-        let pose = Pose {
-            stamp,
-            position_m: [px, py, ground_m],
-            yaw_rad: pyaw,
-            linear_mps: r.linear_mps as f32,
-            angular_radps: r.angular_radps as f32,
-            ..Default::default()
-        };
-        poses.publish(&pose)?;
-        let (lh, lc) = sensor.observe(&episode.scenario.world, r.x_m, r.y_m, stamp);
-        locals.publish_copy(lh, &lc)?;
-        for rig in &mut rigs {
-            rig.publish(&episode.scenario.world, r.pose(), stamp)?;
-        }
-        goals.deliver_history()?;
+        let stamp = sim.next_stamp(match a.clock {
+            ClockMode::Lockstep => None,
+            ClockMode::Realtime => Some(farsight_interfaces::clock::Clock::now_ns(
+                &farsight_interfaces::clock::WallClock,
+            )),
+        });
+        let sensed = sim.sense(stamp, |_| true);
         if let Some(rec) = &mut recorder {
-            rec.message(topics::pose().name(), stamp, &pose)?;
-            rec.slice(topics::costmap("local").name(), stamp, &lh, &lc)?;
-            if k % a.record_every.max(1) == 1 % a.record_every.max(1) {
-                for rig in &rigs {
-                    rig.record(rec, stamp)?;
+            // Poses and local costmaps every frame; camera frames (image
+            // and info) every `record_every`-th.
+            let cameras_too = k % a.record_every.max(1) == 1 % a.record_every.max(1);
+            for (topic, m) in &sensed {
+                let camera = topic.ends_with("/image") || topic.ends_with("/info");
+                let kept = match m {
+                    Message::Pose(_) | Message::Costmap(_) => true,
+                    _ => camera && cameras_too,
+                };
+                if kept {
+                    rec.0
+                        .write(topic, stamp, stamp.capture_time_ns, &m.to_wire()?)?;
                 }
             }
         }
+        for (topic, m) in sensed {
+            publishers
+                .get_mut(&topic)
+                .expect("a port per sensed topic")
+                .publish_message(m)?;
+        }
+        goals.deliver_history()?;
 
         let command = match (&mut expert, a.clock) {
-            (Some(e), _) => Some(VelocityCommand {
-                stamp,
-                linear_mps: 0.0,
-                angular_radps: 0.0,
-                ..Default::default()
-            })
-            .map(|mut c| {
-                let (v, w) = e.command(&episode.scenario.world, r.pose(), dt);
-                (c.linear_mps, c.angular_radps) = (v as f32, w as f32);
-                c
-            }),
+            (Some(e), _) => {
+                let (v, w) = e.command(&sim.episode.scenario.world, r.pose(), dt);
+                Some(VelocityCommand {
+                    stamp,
+                    linear_mps: v as f32,
+                    angular_radps: w as f32,
+                    ..Default::default()
+                })
+            }
             (None, clock) => match clock {
                 ClockMode::Lockstep => {
-                    let end = Instant::now() + Duration::from_secs_f64(a.command_timeout_s);
-                    loop {
+                    let timeout = Duration::from_secs_f64(a.command_timeout_s);
+                    let end = Instant::now() + timeout;
+                    let command = loop {
                         match commands.latest()? {
                             Some(c) if c.stamp.frame_seq >= k => break Some(c),
                             _ if Instant::now() >= end || bus.termination_requested() => {
@@ -467,7 +431,13 @@ pub fn run(a: RunArgs) -> Result<Summary> {
                             }
                             _ => std::thread::sleep(Duration::from_micros(500)),
                         }
+                    };
+                    if command.is_some() {
+                        for w in &mut awaited {
+                            w.wait_for(k, timeout, &bus)?;
+                        }
                     }
+                    command
                 }
                 ClockMode::Realtime => {
                     let due = wall_start + Duration::from_secs_f64(k as f64 * dt);
@@ -478,11 +448,7 @@ pub fn run(a: RunArgs) -> Result<Summary> {
         };
         // The robot is a base like any other: it holds the last command it
         // received for that command's time-to-live, then stops.
-        let fresh =
-            command.is_some_and(|c| c.linear_mps.is_finite() && c.angular_radps.is_finite());
-        if let Some(c) = command {
-            base.receive(c, episode.time_s);
-        }
+        let (fresh, outcome) = sim.drive(command);
         if !fresh {
             late += 1;
             if late == 1 || late.is_multiple_of(100) {
@@ -491,9 +457,8 @@ pub fn run(a: RunArgs) -> Result<Summary> {
                 );
             }
         }
-        let (v, w_) = base.command(episode.time_s);
-        let outcome = episode.step((v, w_), dt);
-        trace.record(&episode)?;
+        let episode = &sim.episode;
+        trace.record(episode)?;
         if k % (5.0 * a.rate_hz).max(1.0) as u64 == 0 {
             trace.flush()?;
             eprintln!(
@@ -514,8 +479,8 @@ pub fn run(a: RunArgs) -> Result<Summary> {
     if let Some(rec) = recorder {
         rec.0.finish()?;
     }
-    let summary = episode.summary();
-    let (mw, mh, cells) = episode.map_rgb();
+    let summary = sim.episode.summary();
+    let (mw, mh, cells) = sim.episode.map_rgb();
     let k = map_scale(mw, mh);
     let (pw, ph) = (mw * k, mh * k);
     let rgb: Vec<u8> = (0..ph)

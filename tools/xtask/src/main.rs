@@ -559,39 +559,55 @@ fn sim_fixture() -> Result<()> {
     ] {
         std::fs::copy(out.join(f), dest.join(f)).map_err(|e| format!("copying {f}: {e}"))?;
     }
+    // The goldens come from the fixture's graph as `farsight run` starts it
+    // (tests/replay.rs starts it the same way).
     let bin = root().join("target/release");
     let prefix = format!("fixture{}_", std::process::id());
-    let mut stages = Vec::new();
-    for stage in ["inference", "subgoal-selection", "velocity-servoing"] {
-        let mut child = Command::new(bin.join(format!("farsight-{stage}")))
-            .arg("--config")
-            .arg(dest.join(format!("{stage}.toml")))
-            .env("FARSIGHT_IPC_PREFIX", &prefix)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .map_err(|e| format!("starting {stage}: {e}"))?;
-        let mut line = String::new();
-        let _ = BufReader::new(child.stdout.take().expect("piped")).read_line(&mut line);
-        stages.push(child);
-    }
-    let replayed = run(Command::new(bin.join("farsight"))
+    let mut graph = Command::new(bin.join("farsight"))
+        .arg("run")
+        .arg(dest.join("graph.toml"))
+        .arg("--out")
+        .arg(out.join("graph-run"))
         .env("FARSIGHT_IPC_PREFIX", &prefix)
-        .arg("replay")
-        .arg(dest.join("recording.mcap"))
-        .args(["--topics", FIXTURE_INPUTS, "--lockstep"])
-        .args([
-            "--driving",
-            "camera/front/image",
-            "--answer",
-            FIXTURE_OUTPUTS,
-        ])
-        .arg("--record-answers")
-        .arg(dest.join("golden.mcap")));
-    for mut s in stages {
-        let _ = s.kill();
-        let _ = s.wait();
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .map_err(|e| format!("starting farsight run: {e}"))?;
+    let mut waiting = vec!["inference", "subgoal-selection", "velocity-servoing"];
+    let mut lines = BufReader::new(graph.stdout.take().expect("piped")).lines();
+    while !waiting.is_empty() {
+        match lines.next() {
+            Some(Ok(l)) => waiting.retain(|s| !l.contains(&format!("{s}: ready"))),
+            _ => break,
+        }
     }
+    // Keep its stdout drained while the replay runs.
+    std::thread::spawn(move || lines.for_each(drop));
+    let replayed = if waiting.is_empty() {
+        run(Command::new(bin.join("farsight"))
+            .env("FARSIGHT_IPC_PREFIX", &prefix)
+            .arg("replay")
+            .arg(dest.join("recording.mcap"))
+            .args(["--topics", FIXTURE_INPUTS, "--lockstep"])
+            .args([
+                "--driving",
+                "camera/front/image",
+                "--answer",
+                FIXTURE_OUTPUTS,
+            ])
+            .arg("--record-answers")
+            .arg(dest.join("golden.mcap")))
+    } else {
+        Err(format!(
+            "farsight run never said {waiting:?} ready; see {}",
+            out.join("graph-run").display()
+        ))
+    };
+    // Ctrl-C, as a user would: farsight run stops its nodes and exits.
+    let _ = Command::new("kill")
+        .args(["-INT", &graph.id().to_string()])
+        .status();
+    let _ = graph.wait();
     replayed?;
     println!("fixture and goldens written to {}", dest.display());
     Ok(())
@@ -626,8 +642,9 @@ fn orfd_fixture() -> Result<()> {
         "camera-ingest.toml",
         format!(
             "[[cameras]]\nfolder = {:?}\nrate_hz = 4.0\nloops = 1\n[cameras.model]\nname = \"front\"\n\
-             width = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\n",
-            root().join("../shared/data/orfd/image_data").display().to_string()
+             camera_info = {:?}\n",
+            root().join("../shared/data/orfd/image_data").display().to_string(),
+            dest.join("front.yaml").display().to_string()
         ),
     )?;
     let prefix = format!("fixtureorfd{}_", std::process::id());
