@@ -150,6 +150,10 @@ impl Stage for ServoStage {
         if !due && !estop_now {
             return;
         }
+        if starved && !estop_now {
+            self.starved_stop(step);
+            return;
+        }
         self.fresh_tracked = false;
         let (cmd, state, why) = self.command(now, starved);
         let stamp = cmd.stamp;
@@ -206,6 +210,29 @@ impl ServoStage {
             // Whether the goal is reached is judged with the pose.
             self.inputs.set_need(self.pose_in, Need::Required);
         }
+    }
+
+    /// On the stamps' clock, the wall-clock watchdog's stop: upstream has
+    /// sent nothing for `subgoal_deadline_s` of wall time. It goes to the
+    /// base at once, but it is not a step of the control law: on the
+    /// stamps' clock no time passes between inputs, so the ramp state is
+    /// left as it was (otherwise how fast a machine delivers the inputs
+    /// would change the track), and it carries no input's stamp, since no
+    /// input is behind it (a lock-step simulator never takes it for the
+    /// answer to a frame).
+    fn starved_stop(&mut self, step: &mut Step<'_>) {
+        let why = format!(
+            "no {} for {} s of wall time",
+            self.tracked, self.config.subgoal_deadline_s
+        );
+        step.health.set(HealthState::DEGRADED, &why);
+        step.out.send(
+            self.port.command,
+            VelocityCommand {
+                ttl_ms: self.config.command_ttl_ms(),
+                ..VelocityCommand::stop(Stamp::default(), CommandReason::STALE_INPUT)
+            },
+        );
     }
 
     /// The command for `now`, with the health state and reason it implies.
@@ -348,6 +375,44 @@ mod tests {
         // A tick with nothing new sends nothing (the wall watchdog is fresh).
         assert!(h.step(Wake::Tick, S / 10).is_empty());
         assert_eq!(h.health.report().messages_in, 1);
+    }
+
+    #[test]
+    fn on_stamps_the_wall_watchdog_stops_the_robot_without_changing_the_next_command() {
+        // Two subgoals 0.1 s apart in capture time; in one run the machine
+        // takes 3 s of wall time to deliver the second (past the 2 s
+        // deadline), so the watchdog stops the robot in between.
+        let run = |stall: bool| {
+            let mut h = stage("clock = \"stamps\"\nsubgoal_deadline_s = 2.0");
+            let wake = h.wake_on("nav/subgoal");
+            h.put("nav/subgoal", heading(10 * S, 1, 0.2));
+            let first = commands(h.step(wake, 0));
+            let mut stops = Vec::new();
+            if stall {
+                stops = commands(h.step(Wake::Tick, 3 * S));
+                assert_eq!(h.health.state(), HealthState::DEGRADED);
+                assert!(h.health.report().reason.as_str().contains("wall time"));
+            }
+            h.put("nav/subgoal", heading(10 * S + S / 10, 2, 0.2));
+            let second = commands(h.step(wake, if stall { 3 * S + S / 10 } else { S / 10 }));
+            (first, stops, second)
+        };
+        let (first, none, second) = run(false);
+        let (first_stalled, stops, second_stalled) = run(true);
+        assert!(none.is_empty());
+        assert_eq!(first, first_stalled);
+        assert_eq!(stops.len(), 1);
+        assert_eq!(stops[0].reason, CommandReason::STALE_INPUT);
+        assert_eq!((stops[0].linear_mps, stops[0].angular_radps), (0.0, 0.0));
+        assert_eq!(stops[0].stamp, Stamp::default(), "answers no frame");
+        assert!(
+            second[0].linear_mps > first[0].linear_mps,
+            "still ramping up"
+        );
+        assert_eq!(
+            second, second_stalled,
+            "the stall leaves the track as it was"
+        );
     }
 
     #[test]
