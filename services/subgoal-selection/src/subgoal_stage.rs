@@ -711,6 +711,14 @@ impl MapPlan {
             self.pending = Some(c);
         }
         let config = &cx.config;
+        // On the stamps' clock the planner moves only with a costmap (one
+        // plan per frame). A step without one (a tick, between a frame's
+        // pose and its costmap) would place the goal with the newer pose
+        // and the older guide, and rebuild the grid for that mix: a track
+        // that depends on when the tick fell.
+        if config.clock == ClockSource::Stamps && self.pending.is_none() {
+            return;
+        }
         // With a guide on the stamps' clock, a costmap waits for the
         // guide's subgoal of its frame; on the wall clock the newest guide
         // subgoal is the goal of the next plan.
@@ -1297,6 +1305,40 @@ mod tests {
             assert!(out.is_empty(), "{}: {:?}", c.name, topics_of(&out));
             assert_eq!(h.health.report().dropped, 1, "{}", c.name);
         }
+    }
+
+    #[test]
+    fn on_stamps_a_guided_planner_moves_only_with_a_costmap() {
+        const GUIDE: &str = "nav/subgoal/lrn";
+        let c = cases(&format!("guide = \"{GUIDE}\""))
+            .into_iter()
+            .find(|c| c.name == "dstar_lite")
+            .unwrap();
+        let mut h = c.stage();
+        h.put("state/pose", pose(at(7, 10 * S)));
+        h.put(GUIDE, guide(7));
+        c.put_primary(&mut h, at(7, 10 * S));
+        let out = h.step(h.wake_on(c.primary), 10 * S);
+        assert_eq!(topics_of(&out), c.outputs);
+        let grid_goal = |h: &Harness<SubgoalStage>| match &h.stage.method {
+            Method::Map(m) => match &m.planner {
+                MapPlanner::DStarLite(Some(pl)) => pl.goal_m(),
+                _ => panic!("no planning grid"),
+            },
+            _ => unreachable!(),
+        };
+        let goal_7 = grid_goal(&h);
+        // Frame 8's pose (5 m on) reaches the stage on a tick, before frame
+        // 8's costmap and guide: guide 7 must not be placed with it.
+        h.put(
+            "state/pose",
+            Pose {
+                position_m: [5.0, 0.0, 0.0],
+                ..pose(at(8, 10 * S + S / 10))
+            },
+        );
+        assert!(h.step(Wake::Tick, 10 * S + S / 20).is_empty());
+        assert_eq!(grid_goal(&h), goal_7, "the grid is frame 7's");
     }
 
     #[test]
