@@ -48,6 +48,32 @@ pub struct ProjectionStage {
     inputs: StageInputs,
     camera_in: Vec<InputId>,
     method: Method,
+    /// With `join_cameras_by_frame`: each camera's newest frame number
+    /// taken in, and the frame last answered.
+    join: Option<FrameJoin>,
+}
+
+/// The cameras' frames joined by number (`join_cameras_by_frame`).
+struct FrameJoin {
+    newest: Vec<Option<u64>>,
+    answered: u64,
+}
+
+impl FrameJoin {
+    /// Camera `i` took in frame `seq`; `true` when every camera has now
+    /// taken in the newest frame any camera has, and it is not answered yet.
+    fn complete(&mut self, i: usize, seq: u64) -> bool {
+        self.newest[i] = Some(self.newest[i].map_or(seq, |s| s.max(seq)));
+        let Some(newest) = self.newest.iter().flatten().max().copied() else {
+            return false;
+        };
+        let all = self.newest.iter().all(|s| *s == Some(newest));
+        if all && newest > self.answered {
+            self.answered = newest;
+            return true;
+        }
+        false
+    }
 }
 
 /// What differs between the methods: the per-camera projection, its cached
@@ -150,6 +176,10 @@ impl StageKind for ProjectionStage {
             .iter()
             .map(|c| inputs.add_to("cameras", c, Need::Required))
             .collect();
+        let join = config.join_cameras_by_frame.then(|| FrameJoin {
+            newest: vec![None; n],
+            answered: 0,
+        });
         Ok(Self {
             ports,
             frames,
@@ -158,6 +188,7 @@ impl StageKind for ProjectionStage {
             inputs,
             camera_in,
             method,
+            join,
         })
     }
 }
@@ -196,6 +227,11 @@ impl Stage for ProjectionStage {
                 }
             };
             self.inputs.consumed(self.camera_in[i], frame_stamp);
+            if let Some(join) = &mut self.join {
+                if !join.complete(i, frame_stamp.frame_seq) {
+                    continue;
+                }
+            }
             let fresh = fresh_cameras(&self.inputs, &self.camera_in, step.wall_ns, step.health);
             let stamp = self.inputs.output_stamp().unwrap_or(frame_stamp);
             step.out
@@ -477,6 +513,48 @@ mod tests {
         );
         assert_eq!(angular(h.step(wake, 11 * S))[0].stamp.frame_seq, 8);
         assert!(h.step(Wake::Tick, 11 * S + S / 5).is_empty());
+    }
+
+    #[test]
+    fn joined_by_frame_the_order_cameras_answer_in_does_not_change_the_bins() {
+        let (front, rear) = (camera(0, "front", 0.0), camera(1, "rear", 180.0));
+        // Two frames; each camera's heatmap put in its own step, in the
+        // given order per frame. Returns every output.
+        let run = |join: bool, orders: [[usize; 2]; 2]| {
+            let mut h = stage(&format!(
+                "cameras = [\"front\", \"rear\"]\njoin_cameras_by_frame = {join}\n\
+                 [bins]\nalpha = 0.5\nh_thresh = 0.5\nthreshold_on = \"bins\"\n"
+            ));
+            h.put("camera/front/info", info(&front));
+            h.put("camera/rear/info", info(&rear));
+            let mut out = Vec::new();
+            for (k, order) in orders.iter().enumerate() {
+                let seq = k as u64 + 1;
+                for &c in order {
+                    let (cam, topic) = [
+                        (&front, "perception/front/heatmap"),
+                        (&rear, "perception/rear/heatmap"),
+                    ][c];
+                    let value = [[1.0, 0.2], [0.3, 0.9]][k][c];
+                    h.put(topic, heatmap(cam, stamp(seq, seq * S), value));
+                    out.extend(angular(h.step(h.wake_on(topic), seq * S)));
+                }
+            }
+            out
+        };
+        let a = run(true, [[0, 1], [1, 0]]);
+        let b = run(true, [[1, 0], [0, 1]]);
+        assert_eq!(a.len(), 2, "one output per frame");
+        assert_eq!(
+            a.iter().map(|b| b.stamp.frame_seq).collect::<Vec<_>>(),
+            [1, 2]
+        );
+        assert_eq!(a, b);
+        // One output per input: the order shows in the smoothed bins.
+        let a = run(false, [[0, 1], [1, 0]]);
+        let b = run(false, [[1, 0], [0, 1]]);
+        assert_eq!(a.len(), 4);
+        assert_ne!(a.last(), b.last());
     }
 
     #[test]

@@ -7,6 +7,9 @@
 //! input_deadline_s = 1.0         # a camera whose newest capture is this much older than
 //!                                # the newest of any camera drops out of the bins
 //! health_rate_hz = 1.0
+//! join_cameras_by_frame = false  # true: one output per frame number, once every camera's
+//!                                # input of that frame is in (lock-step simulation, whose
+//!                                # cameras share frame numbers); false: one per input
 //! [bins]                         # see farsight_bin_projection::LrnBinsConfig (Spot preset)
 //! bin_width_deg = 5.0
 //! h_thresh = 0.7
@@ -34,6 +37,11 @@ pub struct BinProjectionConfig {
     pub cameras: Vec<String>,
     pub input_deadline_s: f64,
     pub health_rate_hz: f64,
+    /// One output per frame number, once every camera's input of that
+    /// frame has arrived; otherwise one output per input. For lock-step
+    /// runs, where the cameras' frames share numbers and the order several
+    /// inference processes answer in must not change the bins.
+    pub join_cameras_by_frame: bool,
     pub bins: LrnBinsConfig,
     pub fitam: FitamBinsConfig,
 }
@@ -45,6 +53,7 @@ impl Default for BinProjectionConfig {
             cameras: vec!["front".into()],
             input_deadline_s: farsight_stage::inputs::DEFAULT_INPUT_DEADLINE_S,
             health_rate_hz: 1.0,
+            join_cameras_by_frame: false,
             bins: LrnBinsConfig::default(),
             fitam: FitamBinsConfig::default(),
         }
