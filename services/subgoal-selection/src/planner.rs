@@ -231,8 +231,11 @@ impl WorldPlanner {
     /// no path. For a goal that is only a direction (a guide's subgoal a
     /// fixed distance out along its heading) the place to head for is the
     /// farthest free cell on the straight line from `from_m` to the goal,
-    /// before the first blocked one: that point, or `None` when the goal's
-    /// cell is free (or the line is blocked from the start).
+    /// before the first blocked one. When that line is blocked from its
+    /// first step (the robot faces a wall), it is the free cell nearest the
+    /// goal, as Nav2's planners take the nearest free cell within their goal
+    /// tolerance: the way round is the planner's to find. `None` when the
+    /// goal's cell is free, or no cell of the grid is.
     pub fn goal_pulled_back_from_blocked(&self, from_m: [f64; 2]) -> Option<[f64; 2]> {
         let grid = self.dstar.grid();
         let blocked = |p: [f64; 2]| self.cell(p).is_none_or(|(x, y)| grid.is_blocked(x, y));
@@ -250,7 +253,46 @@ impl WorldPlanner {
             }
             free = Some(p);
         }
-        free
+        free.or_else(|| self.nearest_free_cell(self.goal_m).map(|c| self.world(c)))
+    }
+
+    /// The free cell nearest `p_m` (Euclidean, in cells; ties to the first
+    /// found, so the answer is the same every run), searched ring by ring
+    /// outward from `p_m`'s cell, clamped onto the grid.
+    fn nearest_free_cell(&self, p_m: [f64; 2]) -> Option<(usize, usize)> {
+        let grid = self.dstar.grid();
+        let (w, h) = (grid.width as i64, grid.height as i64);
+        let cx = (((p_m[0] - self.origin_m[0]) / self.resolution_m).round() as i64).clamp(0, w - 1);
+        let cy = (((p_m[1] - self.origin_m[1]) / self.resolution_m).round() as i64).clamp(0, h - 1);
+        let mut best: Option<(i64, (usize, usize))> = None;
+        for d in 0..w.max(h) {
+            // Every cell of ring d is at least d away: past the best, stop.
+            if best.is_some_and(|(d2, _)| d * d > d2) {
+                break;
+            }
+            for y in (cy - d).max(0)..=(cy + d).min(h - 1) {
+                let on_edge = y == cy - d || y == cy + d;
+                let xs: Vec<i64> = if on_edge {
+                    ((cx - d).max(0)..=(cx + d).min(w - 1)).collect()
+                } else {
+                    [cx - d, cx + d]
+                        .into_iter()
+                        .filter(|&x| x >= 0 && x < w)
+                        .collect()
+                };
+                for x in xs {
+                    let (ux, uy) = (x as usize, y as usize);
+                    if grid.is_blocked(ux, uy) {
+                        continue;
+                    }
+                    let d2 = (x - cx).pow(2) + (y - cy).pow(2);
+                    if best.is_none_or(|(b, _)| d2 < b) {
+                        best = Some((d2, (ux, uy)));
+                    }
+                }
+            }
+        }
+        best.map(|(_, c)| c)
     }
 
     /// Plans from the robot at `robot_m`: the world path (cell centres, the
@@ -380,6 +422,54 @@ mod tests {
         // A free goal stays where it is.
         let free = WorldPlanner::new([0.0, 0.0], [5.0, 0.0], &cfg);
         assert_eq!(free.goal_pulled_back_from_blocked([0.0, 0.0]), None);
+    }
+
+    #[test]
+    fn facing_a_wall_the_goal_behind_it_becomes_the_free_cell_nearest_it() {
+        let cfg = WorldPlannerConfig {
+            margin_m: 10.0,
+            inflation_radius_m: 1.0,
+            ..Default::default()
+        };
+        // A wall x = 1..=3, y = -5..=5 right in front of the robot at the
+        // origin (its inflation reaches x = 0: the line is blocked from its
+        // first step), the goal in it at x = 3.
+        let header = CostmapHeader {
+            stamp: Stamp::default(),
+            layer: CostmapLayer::FUSED,
+            width: 3,
+            height: 11,
+            resolution_m: 1.0,
+            x_min_m: 1.0,
+            y_max_m: 5.0,
+        };
+        let cells = vec![
+            CostCell {
+                cost_s_per_m: f32::INFINITY,
+                variance: 0.0,
+            };
+            3 * 11
+        ];
+        let mut p = WorldPlanner::new([0.0, 0.0], [3.0, 0.0], &cfg);
+        p.apply_costmap(&header, &cells);
+        assert_eq!(p.plan([0.0, 0.0]), Err(PlanError::NoPath));
+        // The inflation ends at x = 4: behind the wall, 2 m from the goal
+        // (before it, x = -1, is 4 m; past its ends, 6 m).
+        let g = p.goal_pulled_back_from_blocked([0.0, 0.0]).unwrap();
+        assert_eq!(g, [5.0, 0.0]);
+        let mut q = WorldPlanner::new([0.0, 0.0], g, &cfg);
+        q.apply_costmap(&header, &cells);
+        let (path, _) = q.plan([0.0, 0.0]).unwrap();
+        assert!(
+            path.iter().any(|c| c[1].abs() > 6.0),
+            "round an end of the wall: {path:?}"
+        );
+        // Nothing free at all: no goal.
+        let mut all = WorldPlanner::new([0.0, 0.0], [3.0, 0.0], &cfg);
+        let (w, h) = (all.dstar.grid().width, all.dstar.grid().height);
+        all.dstar
+            .set_costs((0..h).flat_map(|y| (0..w).map(move |x| (x, y, f32::INFINITY))));
+        assert_eq!(all.goal_pulled_back_from_blocked([0.0, 0.0]), None);
     }
 
     #[test]

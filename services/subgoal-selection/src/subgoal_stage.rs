@@ -227,6 +227,7 @@ impl StageKind for SubgoalStage {
                     dirty: true,
                     period_ns: (1e9 / config.replan_rate_hz) as u64,
                     next_plan: 0,
+                    requested_goal_m: None,
                 }))
             }
         };
@@ -665,6 +666,10 @@ struct MapPlan {
     dirty: bool,
     period_ns: u64,
     next_plan: u64,
+    /// The goal the D* Lite grid was built for, before any pull-back from
+    /// a blocked cell: a guide's goal is judged new against this, so a
+    /// pulled-back goal is not rebuilt (twice) every frame.
+    requested_goal_m: Option<[f64; 2]>,
 }
 
 impl MapPlan {
@@ -746,8 +751,9 @@ impl MapPlan {
         let goal_robot = [distance * bearing.cos(), distance * bearing.sin()];
         let goal = p.to_world_frame(goal_robot);
         if let MapPlanner::DStarLite(pl) = &mut self.planner {
+            let requested = self.requested_goal_m;
             let new_goal = pl.as_ref().is_none_or(|pl| {
-                let g = pl.goal_m();
+                let g = requested.unwrap_or(pl.goal_m());
                 (g[0] - goal[0]).hypot(g[1] - goal[1]) > config.planner.resolution_m
             });
             // A robot that left the grid (relocalised, carried, a
@@ -770,6 +776,7 @@ impl MapPlan {
                     );
                 }
                 *pl = Some(Box::new(WorldPlanner::new(robot, goal, &config.planner)));
+                self.requested_goal_m = Some(goal);
                 self.dirty = true;
             }
         }
@@ -788,7 +795,8 @@ impl MapPlan {
                         self.dirty |= planner.apply_costmap(&h, &c.data) > 0;
                         // A guide's subgoal is a direction and a distance:
                         // inside an obstacle, head for the free ground
-                        // before it.
+                        // before it, or nearest it (WorldPlanner::
+                        // goal_pulled_back_from_blocked).
                         let pulled_back = cx
                             .guide_in
                             .and_then(|_| planner.goal_pulled_back_from_blocked(robot));
