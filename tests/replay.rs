@@ -4,10 +4,9 @@
 //! bush-wall, recorded with every topic, with the stage configs the demo ran,
 //! the graph file naming them (`graph.toml`) and the goldens (`cargo xtask
 //! fixtures` regenerates all but the graph file after an intended change of
-//! the outputs). The golden and rate tests start the graph through
-//! `farsight run`; the tests that change one stage's config or kill a stage
-//! for a set time start the stages themselves (a supervisor would restart
-//! a killed stage at once). Its simulator topics are replayed
+//! the outputs). Every test starts the graph through `farsight run`: the
+//! fixture's graph file, or a copy with one stage's config changed; a
+//! killed stage is restarted by `farsight run`. Its simulator topics are replayed
 //! lock-step into inference (HSV backend) -> subgoal-selection (POVNav) ->
 //! velocity-servoing, all on the stamps' clock, and every output topic is
 //! compared with `golden.mcap`.
@@ -40,18 +39,28 @@ fn fixture() -> PathBuf {
     repo_root().join("tests/fixtures/sim-povnav")
 }
 
-/// The graph under test, each stage started from the fixture's config
-/// (`servo_deadline_s` overrides the servo's stale-input deadline).
-fn start_stage(ns: &Namespace, stage: &str, servo_deadline_s: Option<f64>) -> Proc {
-    let mut text = std::fs::read_to_string(fixture().join(format!("{stage}.toml"))).unwrap();
-    if let (Some(d), "velocity-servoing") = (servo_deadline_s, stage) {
-        text = text.replace(
-            "subgoal_deadline_s = 2.0",
-            &format!("subgoal_deadline_s = {d}"),
-        );
+/// The fixture's graph with every node's config inline, as `edit` (node
+/// name, config) leaves it, written into `ns`: what a test runs when it
+/// changes a stage's config.
+fn edited_graph(ns: &Namespace, edit: impl Fn(&str, &mut toml::Table)) -> PathBuf {
+    let text = std::fs::read_to_string(fixture().join("graph.toml")).unwrap();
+    let mut graph: toml::Table = toml::from_str(&text).unwrap();
+    for node in graph["node"].as_array_mut().unwrap() {
+        let node = node.as_table_mut().unwrap();
+        let name = node["name"].as_str().unwrap().to_string();
+        let file = fixture().join(node["config"].as_str().unwrap());
+        let mut config: toml::Table =
+            toml::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
+        edit(&name, &mut config);
+        node.insert("config".into(), toml::Value::Table(config));
     }
-    let cfg = ns.write(&format!("{stage}.toml"), &text);
-    ns.start_stage(&format!("farsight-{stage}"), stage, &cfg)
+    ns.write("graph.toml", &toml::to_string(&graph).unwrap())
+}
+
+/// The servo's stale-input deadline set to `deadline_s` in `config`, the
+/// servo's.
+fn servo_deadline(config: &mut toml::Table, deadline_s: f64) {
+    config.insert("subgoal_deadline_s".into(), toml::Value::Float(deadline_s));
 }
 
 fn replay_args<'a>(answers: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
@@ -71,10 +80,10 @@ fn replay_args<'a>(answers: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
     a
 }
 
-/// The fixture's graph started through `farsight run` (with extra
-/// environment), once every node said it is ready.
-fn run_graph(ns: &Namespace, env: &[(&str, &str)]) -> Proc {
-    let graph = fixture().join("graph.toml");
+/// Graph file `graph` (the fixture's, or an edited one) started through
+/// `farsight run` (with extra environment), once every node said it is
+/// ready.
+fn run_graph(ns: &Namespace, graph: &Path, env: &[(&str, &str)]) -> Proc {
     let out = ns.root.join("run");
     let run = Proc::start_env(
         "farsight",
@@ -122,7 +131,7 @@ fn report(m: &[Mismatch]) -> String {
 #[test]
 fn a_lockstep_replay_through_the_real_stages_reproduces_every_golden_output() {
     let ns = Namespace::new("golden");
-    let _graph = run_graph(&ns, &[]);
+    let _graph = run_graph(&ns, &fixture().join("graph.toml"), &[]);
     let answers = lockstep_replay(&ns);
     let diffs = mismatches(&answers, &OUTPUTS);
     assert!(
@@ -145,22 +154,20 @@ fn a_changed_output_is_reported_with_topic_sequence_and_field() {
     // The same replay with the servo's gain changed must not pass: the diff
     // names cmd/velocity, the first frame that moved and the field.
     let ns = Namespace::new("goldenneg");
-    let mut stages: Vec<Proc> = STAGES[..2]
-        .iter()
-        .map(|s| start_stage(&ns, s, None))
-        .collect();
-    let text = std::fs::read_to_string(fixture().join("velocity-servoing.toml")).unwrap();
-    let mut servo: toml::Table = toml::from_str(&text).unwrap();
-    let gains = servo
-        .entry("servo")
-        .or_insert_with(|| toml::Value::Table(Default::default()))
-        .as_table_mut()
-        .unwrap();
-    let k = gains.get("k_angular").and_then(toml::Value::as_float);
-    assert_ne!(k, Some(1.2), "the fixture's gain is not the changed one");
-    gains.insert("k_angular".into(), toml::Value::Float(1.2));
-    let cfg = ns.write("velocity-servoing.toml", &toml::to_string(&servo).unwrap());
-    stages.push(ns.start_stage("farsight-velocity-servoing", "velocity-servoing", &cfg));
+    let graph = edited_graph(&ns, |node, config| {
+        if node != "velocity-servoing" {
+            return;
+        }
+        let gains = config
+            .entry("servo")
+            .or_insert_with(|| toml::Value::Table(Default::default()))
+            .as_table_mut()
+            .unwrap();
+        let k = gains.get("k_angular").and_then(toml::Value::as_float);
+        assert_ne!(k, Some(1.2), "the fixture's gain is not the changed one");
+        gains.insert("k_angular".into(), toml::Value::Float(1.2));
+    });
+    let _graph = run_graph(&ns, &graph, &[]);
     let answers = lockstep_replay(&ns);
     let diffs = mismatches(&answers, &OUTPUTS);
     assert!(!diffs.is_empty());
@@ -249,9 +256,18 @@ fn commands(path: &Path) -> Vec<VelocityCommand> {
 fn each_stage_killed_mid_replay_comes_back_and_matches_the_golden_run_again() {
     for (k, victim) in STAGES.iter().enumerate() {
         let ns = Namespace::new(&format!("restart{k}"));
-        let mut stages: Vec<Proc> = STAGES
+        let graph = edited_graph(&ns, |node, config| {
+            if node == "velocity-servoing" {
+                servo_deadline(config, 0.3);
+            }
+        });
+        let run = run_graph(&ns, &graph, &[]);
+        let pids: Vec<u32> = STAGES
             .iter()
-            .map(|s| start_stage(&ns, s, Some(0.3)))
+            .map(|s| {
+                run.child_instance_pid(s)
+                    .unwrap_or_else(|| panic!("no process for node {s}"))
+            })
             .collect();
         let answers = ns.root.join("answers.mcap");
         let args = replay_args(&answers, &["--lockstep", "--timeout-s", "0.4"]);
@@ -259,8 +275,8 @@ fn each_stage_killed_mid_replay_comes_back_and_matches_the_golden_run_again() {
         let cmd = bus.subscriber(&topics::velocity_command()).unwrap();
         let mut replay = Proc::start("farsight", &args, &ns);
         // Frames go out every few milliseconds while the graph answers: let
-        // 20 through, then SIGKILL the victim for 1.5 s (the replay waits
-        // 0.4 s per unanswered frame), then restart it.
+        // 20 through, then SIGKILL the victim; `farsight run` restarts it
+        // after its back-off (the replay waits 0.4 s per unanswered frame).
         let end = Instant::now() + Duration::from_secs(30);
         while cmd.latest().unwrap().is_none_or(|c| c.stamp.frame_seq < 20) {
             assert!(
@@ -269,10 +285,19 @@ fn each_stage_killed_mid_replay_comes_back_and_matches_the_golden_run_again() {
             );
             std::thread::sleep(Duration::from_micros(200));
         }
-        stages[k].kill();
+        let killed = std::process::Command::new("kill")
+            .args(["-KILL", &pids[k].to_string()])
+            .status()
+            .unwrap();
+        assert!(killed.success());
         let killed_at = Instant::now();
-        std::thread::sleep(Duration::from_millis(1500));
-        stages[k] = start_stage(&ns, victim, Some(0.3));
+        for needle in [format!("{victim}: exited"), format!("{victim}: ready")] {
+            assert!(
+                run.wait_line(Duration::from_secs(60), |l| l.starts_with(&needle))
+                    .is_some(),
+                "farsight run never printed {needle:?}"
+            );
+        }
         let back_after = killed_at.elapsed();
         let code = replay.wait_exit(Duration::from_secs(90));
         let out = replay.stderr_so_far();
@@ -287,15 +312,13 @@ fn each_stage_killed_mid_replay_comes_back_and_matches_the_golden_run_again() {
             out.contains("frames were not consumed by the graph"),
             "{out}"
         );
-        // The others kept running all along.
-        for (j, s) in stages.iter_mut().enumerate() {
-            if j != k {
-                assert_eq!(
-                    s.wait_exit(Duration::from_millis(1)),
-                    None,
-                    "{} died",
-                    STAGES[j]
-                );
+        // The others kept running all along, the victim is a new process.
+        for (j, s) in STAGES.iter().enumerate() {
+            let now = run.child_instance_pid(s);
+            if j == k {
+                assert!(now.is_some_and(|p| p != pids[k]), "{s} not restarted");
+            } else {
+                assert_eq!(now, Some(pids[j]), "{s} was restarted");
             }
         }
         let cmds = commands(&answers);
@@ -359,7 +382,7 @@ fn replays_at_recorded_speed_and_four_times_account_for_every_frame() {
     let ns = Namespace::new("rate");
     let queues = OUTPUTS.map(|t| format!("{t}=64")).join(",");
     let env = [(QUEUES_ENV, queues.as_str())];
-    let _graph = run_graph(&ns, &env);
+    let _graph = run_graph(&ns, &fixture().join("graph.toml"), &env);
     let frames: BTreeSet<u64> = input_frames().into_iter().collect();
     let span_s = input_span_s();
     assert!(span_s > 5.0, "{span_s}");
@@ -741,7 +764,7 @@ fn the_orfd_recording_made_over_zenoh_feeds_camera_ingest_and_twinlitenet() {
 fn a_laptop_inspects_the_graph_over_zenoh_while_a_recording_drives_it() {
     use farsight_tests::free_port;
     let ns = Namespace::new("inspect");
-    let _stages: Vec<Proc> = STAGES.iter().map(|s| start_stage(&ns, s, None)).collect();
+    let _graph = run_graph(&ns, &fixture().join("graph.toml"), &[]);
     let port = free_port();
     let mut cfg = format!(
         "robot = \"bot\"\n[zenoh]\nmode = \"router\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\n\

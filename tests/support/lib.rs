@@ -356,6 +356,40 @@ impl Proc {
         self.child.as_ref().map(|c| c.id()).unwrap_or(0)
     }
 
+    /// The pid of this process's child started as graph node `instance`
+    /// (`--instance <instance>` on its command line): how a test finds a
+    /// node `farsight run` started, to kill or freeze it.
+    pub fn child_instance_pid(&self, instance: &str) -> Option<u32> {
+        let parent = self.pid();
+        for entry in std::fs::read_dir("/proc").ok()?.flatten() {
+            let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
+                continue;
+            };
+            // `pid (comm) state ppid ...`: comm may hold spaces and ')'.
+            let Ok(stat) = std::fs::read_to_string(entry.path().join("stat")) else {
+                continue;
+            };
+            let ppid = stat
+                .rsplit_once(')')
+                .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+                .and_then(|p| p.parse::<u32>().ok());
+            if ppid != Some(parent) {
+                continue;
+            }
+            let Ok(cmdline) = std::fs::read(entry.path().join("cmdline")) else {
+                continue;
+            };
+            let args: Vec<&[u8]> = cmdline.split(|&b| b == 0).collect();
+            if args
+                .windows(2)
+                .any(|w| w[0] == b"--instance" && w[1] == instance.as_bytes())
+            {
+                return Some(pid);
+            }
+        }
+        None
+    }
+
     /// The next stdout line matching `pred`, waiting at most `timeout`.
     pub fn wait_line(
         &self,
