@@ -96,6 +96,10 @@ mod graph {
         ns.start_stage("farsight-inference", "inference", &cfg)
     }
 
+    // The one chain started stage by stage, not through `farsight run`: it
+    // keeps inference down for a second to measure the stop, longer than
+    // farsight run's 0.5 s restart back-off would (tests/replay.rs kills
+    // stages under farsight run's supervision).
     #[test]
     fn killing_inference_stops_the_robot_within_the_deadline_and_restarting_resumes() {
         let ns = Namespace::new("killinfer");

@@ -271,16 +271,14 @@ mod graph {
         let local = bus
             .slice_publisher(&topics::costmap("local"), 21 * 21)
             .unwrap();
-        let fusion = ns.start_stage("farsight-costmap-fusion", "costmap-fusion", &fusion_cfg);
-        let planner = ns.start_stage(
-            "farsight-subgoal-selection",
-            "subgoal-selection",
-            &planner_cfg,
-        );
-        let servo = ns.start_stage(
-            "farsight-velocity-servoing",
-            "velocity-servoing",
-            &servo_cfg,
+        let _graph = ns.run_graph(
+            &[
+                ("costmap-fusion", &fusion_cfg),
+                ("subgoal-selection", &planner_cfg),
+                ("velocity-servoing", &servo_cfg),
+            ],
+            &["state/pose", "nav/goal", "costmap/local"],
+            &["cmd/velocity"],
         );
 
         // Near-field map 21x21 m around the robot at the origin: free ground
@@ -309,8 +307,8 @@ mod graph {
                     .latest()
                     .unwrap()
                     .map(|p| p.points.as_slice().to_vec()),
-                fusion.stderr_so_far(),
-                planner.stderr_so_far()
+                ns.node_log("costmap-fusion"),
+                ns.node_log("subgoal-selection")
             )
         });
         let pts = p.points.as_slice();
@@ -345,7 +343,7 @@ mod graph {
                 Instant::now() < end,
                 "servo never tracked the path: {:?}\n{}",
                 cmds.latest(),
-                servo.stderr_so_far()
+                ns.node_log("velocity-servoing")
             );
             std::thread::sleep(Duration::from_millis(20));
         }
@@ -366,8 +364,18 @@ mod graph {
         );
         let fused = bus.slice_subscriber(&topics::costmap("fused")).unwrap();
         let polar = bus.slice_subscriber(&topics::polar_bins()).unwrap();
-        let _bins = ns.start_stage("farsight-bin-projection", "bin-projection", &bins_cfg);
-        let fusion = ns.start_stage("farsight-costmap-fusion", "costmap-fusion", &fusion_cfg);
+        let _graph = ns.run_graph(
+            &[
+                ("bin-projection", &bins_cfg),
+                ("costmap-fusion", &fusion_cfg),
+            ],
+            &[
+                "state/pose",
+                "camera/front/info",
+                "perception/front/far_field",
+            ],
+            &["costmap/fused"],
+        );
         let pose = bus.publisher(&topics::pose()).unwrap();
         let info = bus.publisher(&topics::camera_info("front")).unwrap();
         let tensor = bus
@@ -422,7 +430,7 @@ mod graph {
             assert!(
                 Instant::now() < end,
                 "the far-field layer never showed the road ahead\n{}",
-                fusion.stderr_so_far()
+                ns.node_log("costmap-fusion")
             );
         }
     }
@@ -478,11 +486,13 @@ mod graph {
         let local = bus
             .slice_publisher(&topics::costmap("local"), 11 * 11)
             .unwrap();
-        let _fusion = ns.start_stage("farsight-costmap-fusion", "costmap-fusion", &fusion_cfg);
-        let planner = ns.start_stage(
-            "farsight-subgoal-selection",
-            "subgoal-selection",
-            &planner_cfg,
+        let _graph = ns.run_graph(
+            &[
+                ("costmap-fusion", &fusion_cfg),
+                ("subgoal-selection", &planner_cfg),
+            ],
+            &["state/pose", "nav/goal", "costmap/local"],
+            &["nav/subgoal"],
         );
         // Free ground, optionally with a rock 3 m ahead across |y| <= 1.
         let ground = |rock: bool| near_field(5, |x, y| rock && x == 3 && y.abs() <= 1);
@@ -505,7 +515,7 @@ mod graph {
                     .latest()
                     .unwrap()
                     .map(|p| p.points.as_slice().to_vec()),
-                planner.stderr_so_far()
+                ns.node_log("subgoal-selection")
             );
         };
         // Open ground: the straight trajectory ends in the goal region.

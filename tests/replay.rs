@@ -84,27 +84,7 @@ fn replay_args<'a>(answers: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
 /// `farsight run` (with extra environment), once every node said it is
 /// ready.
 fn run_graph(ns: &Namespace, graph: &Path, env: &[(&str, &str)]) -> Proc {
-    let out = ns.root.join("run");
-    let run = Proc::start_env(
-        "farsight",
-        &[
-            "run",
-            graph.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ],
-        ns,
-        env,
-    );
-    let ready: Vec<String> = STAGES.iter().map(|s| format!("{s}: ready")).collect();
-    let ready: Vec<&str> = ready.iter().map(String::as_str).collect();
-    let missing = run.wait_all_lines(Duration::from_secs(60), &ready);
-    assert!(
-        missing.is_empty(),
-        "never printed {missing:?}:\n{}",
-        run.stderr_so_far()
-    );
-    run
+    ns.run_graph_file(graph, &STAGES, env)
 }
 
 /// Replays the fixture lock-step into the graph running in `ns`; returns

@@ -129,6 +129,102 @@ impl Namespace {
         bridge
     }
 
+    /// Graph file `graph` started through `farsight run` (with extra
+    /// environment; node configs and logs in `<root>/run`), once every node
+    /// in `nodes` said it is ready. A test of a chain of stages starts it
+    /// so, as a robot does: a test of one stage, with the test as its
+    /// peers, starts that stage alone ([`Namespace::start_stage`]).
+    pub fn run_graph_file(
+        &self,
+        graph: &std::path::Path,
+        nodes: &[&str],
+        env: &[(&str, &str)],
+    ) -> Proc {
+        let out = self.root.join("run");
+        let run = Proc::start_env(
+            "farsight",
+            &[
+                "run",
+                graph.to_str().expect("utf-8 path"),
+                "--out",
+                out.to_str().expect("utf-8 path"),
+            ],
+            self,
+            env,
+        );
+        let ready: Vec<String> = nodes.iter().map(|s| format!("{s}: ready")).collect();
+        let ready: Vec<&str> = ready.iter().map(String::as_str).collect();
+        let missing = run.wait_all_lines(Duration::from_secs(60), &ready);
+        assert!(
+            missing.is_empty(),
+            "farsight run never printed {missing:?}:\n{}\n{}",
+            run.stderr_so_far(),
+            nodes
+                .iter()
+                .map(|n| format!("--- {n}.log\n{}", self.node_log(n)))
+                .collect::<String>()
+        );
+        run
+    }
+
+    /// A graph of `nodes` (each a stage kind, as its instance name, and its
+    /// config file) in which the test writes `test_writes` and reads
+    /// `test_reads`, written into the namespace (`graph.toml`, through the
+    /// TOML serializer) and started through `farsight run`
+    /// ([`Namespace::run_graph_file`]).
+    pub fn run_graph(
+        &self,
+        nodes: &[(&str, &std::path::Path)],
+        test_writes: &[&str],
+        test_reads: &[&str],
+    ) -> Proc {
+        use toml::{Table, Value};
+        let node = |(stage, config): &(&str, &std::path::Path)| {
+            let mut t = Table::new();
+            t.insert("name".into(), Value::from(*stage));
+            t.insert("stage".into(), Value::from(*stage));
+            t.insert(
+                "config".into(),
+                Value::from(config.to_str().expect("utf-8 path")),
+            );
+            Value::Table(t)
+        };
+        let external = |key: &str, topic: &&str| {
+            let mut t = Table::new();
+            t.insert("topic".into(), Value::from(*topic));
+            t.insert(key.into(), Value::from("the test"));
+            Value::Table(t)
+        };
+        let mut graph = Table::new();
+        graph.insert(
+            "node".into(),
+            Value::Array(nodes.iter().map(node).collect()),
+        );
+        graph.insert(
+            "external".into(),
+            Value::Array(
+                test_writes
+                    .iter()
+                    .map(|t| external("from", t))
+                    .chain(test_reads.iter().map(|t| external("to", t)))
+                    .collect(),
+            ),
+        );
+        let file = self.write(
+            "graph.toml",
+            &toml::to_string(&graph).expect("a TOML table"),
+        );
+        let names: Vec<&str> = nodes.iter().map(|(n, _)| *n).collect();
+        self.run_graph_file(&file, &names, &[])
+    }
+
+    /// What node `node` of a graph started by [`Namespace::run_graph_file`]
+    /// has logged so far (for a failing test's message).
+    pub fn node_log(&self, node: &str) -> String {
+        let path = self.root.join("run").join(format!("{node}.log"));
+        std::fs::read_to_string(&path).unwrap_or_else(|e| format!("({}: {e})", path.display()))
+    }
+
     /// `Proc::start` that waits for the stage's `<name> ready` line.
     pub fn start_stage(&self, binary: &str, stage: &str, config: &std::path::Path) -> Proc {
         self.start_stage_in(None, binary, stage, config)
