@@ -4,7 +4,9 @@
 //! `NOTIFY_SOCKET` and `WATCHDOG_USEC`; `READY=1` is announced, a stage that
 //! stops pinging `WATCHDOG=1` after it was ready is killed, and an exit is
 //! restarted by the node's policy (`no`, `on-failure`, `always`) with
-//! back-off (0.5 s doubling to 10 s; reset after 30 s up). One log per
+//! back-off (0.5 s doubling to 10 s; reset after 30 s up). Sources (nodes
+//! that need no input and feed others: camera drivers, players) start once
+//! the other nodes are ready, so no first frame goes out unread. One log per
 //! instance (`<out>/<instance>.log`); Ctrl-C or SIGTERM stops every node
 //! (SIGTERM, then SIGKILL after 10 s).
 //!
@@ -16,6 +18,7 @@
 use crate::graph::{ConfigSource, Graph, NodeSpec, Restart};
 use anyhow::{bail, Context, Result};
 use farsight_interfaces::transport::ipc::{parse_queues, QUEUES_ENV};
+use farsight_stage::Need;
 use std::os::unix::net::UnixDatagram;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -276,7 +279,7 @@ pub fn run(a: RunArgs) -> Result<()> {
         println!("queues: {queues}");
     }
     let mut nodes = Vec::new();
-    for spec in here {
+    for spec in &here {
         let path = out.join("notify").join(format!("{}.sock", spec.name));
         let _ = std::fs::remove_file(&path);
         let notify =
@@ -290,7 +293,7 @@ pub fn run(a: RunArgs) -> Result<()> {
             .env("WATCHDOG_USEC", watchdog.as_micros().to_string())
             .env_remove("WATCHDOG_PID");
         let mut s = Supervised {
-            spec: spec.clone(),
+            spec: (*spec).clone(),
             command,
             log: out.join(format!("{}.log", spec.name)),
             notify,
@@ -301,15 +304,35 @@ pub fn run(a: RunArgs) -> Result<()> {
             failures: 0,
             restart_at: None,
         };
-        s.start()?;
+        if !is_source(&graph, &spec.name) {
+            s.start()?;
+        }
         nodes.push(s);
     }
+    // Sources start once the rest are ready (or have had SOURCE_WAIT).
+    let sources_due = Instant::now() + SOURCE_WAIT;
+    let mut sources_started = false;
     let end = a
         .seconds
         .map(|s| Instant::now() + Duration::from_secs_f64(s));
     while !stop.load(Ordering::Relaxed) && end.is_none_or(|e| Instant::now() < e) {
         for n in &mut nodes {
             n.supervise(watchdog)?;
+        }
+        if !sources_started {
+            let readers_ready = nodes.iter().all(|n| n.child.is_none() || n.ready);
+            if readers_ready || Instant::now() >= sources_due {
+                if !readers_ready {
+                    println!(
+                        "not every node is ready after {} s: starting the sources anyway",
+                        SOURCE_WAIT.as_secs()
+                    );
+                }
+                for n in nodes.iter_mut().filter(|n| is_source(&graph, &n.spec.name)) {
+                    n.start()?;
+                }
+                sources_started = true;
+            }
         }
         std::thread::sleep(Duration::from_millis(50));
     }
@@ -339,6 +362,29 @@ pub fn run(a: RunArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// How long `farsight run` waits for the other nodes to be ready before it
+/// starts the sources anyway.
+const SOURCE_WAIT: Duration = Duration::from_secs(30);
+
+/// A node that needs no input and feeds another node (a camera driver, a
+/// player): `farsight run` starts it once the rest of the machine's nodes
+/// are ready, so its first frames have their readers (a frame published
+/// before its reader subscribed is gone: image topics keep no history, and
+/// a paced camera would wait out its pace timeout for the lost frame's
+/// answer).
+fn is_source(graph: &Graph, name: &str) -> bool {
+    let needs = graph.topics.values().any(|e| {
+        e.readers
+            .iter()
+            .any(|(r, need)| r == name && *need == Need::Required)
+    });
+    let feeds = graph
+        .topics
+        .values()
+        .any(|e| e.writers.iter().any(|w| w == name) && e.readers.iter().any(|(r, _)| r != name));
+    !needs && feeds
 }
 
 /// `farsight run GRAPH` as a child process in the shared-memory namespace
