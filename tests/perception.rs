@@ -1,7 +1,8 @@
 //! Real frames through the real perception stages: camera-ingest plays the ORFD
 //! off-road frames into shared memory, the inference stage runs TwinLiteNet on
 //! them, and the navigability images it publishes mark the road ahead drivable
-//! and the sky not.
+//! and the sky not. Each pair runs as a graph through `farsight run`, which
+//! starts the camera once inference is ready.
 
 use farsight_interfaces::msg::PixelEncoding;
 use farsight_interfaces::topics;
@@ -39,8 +40,14 @@ fn twinlitenet_stage_marks_the_orfd_road_navigable() {
         .slice_subscriber(&topics::navigability("front"))
         .unwrap();
     let health = bus.subscriber(&topics::health("inference")).unwrap();
-    let _inference = ns.start_stage("farsight-inference", "inference", &inference_cfg);
-    let _ingest = ns.start_stage("farsight-camera-ingest", "camera-ingest", &ingest_cfg);
+    let _graph = ns.run_graph(
+        &[
+            ("inference", &inference_cfg),
+            ("camera-ingest", &ingest_cfg),
+        ],
+        &[],
+        &["perception/front/navigability"],
+    );
 
     let mut seen = Vec::new();
     let end = Instant::now() + Duration::from_secs(120);
@@ -159,8 +166,14 @@ fn depth_normals_stage_marks_the_orfd_road_navigable() {
         .slice_subscriber(&topics::navigability("front"))
         .unwrap();
     let health = bus.subscriber(&topics::health("inference")).unwrap();
-    let _inference = ns.start_stage("farsight-inference", "inference", &inference_cfg);
-    let mut ingest = ns.start_stage("farsight-camera-ingest", "camera-ingest", &ingest_cfg);
+    let run = ns.run_graph(
+        &[
+            ("inference", &inference_cfg),
+            ("camera-ingest", &ingest_cfg),
+        ],
+        &[],
+        &["perception/front/navigability"],
+    );
     let mut seqs = Vec::new();
     let end = Instant::now() + Duration::from_secs(120);
     while seqs.last() != Some(&6) && Instant::now() < end {
@@ -182,11 +195,12 @@ fn depth_normals_stage_marks_the_orfd_road_navigable() {
         }
         std::thread::sleep(Duration::from_millis(10));
     }
-    assert_eq!(
-        ingest.wait_exit(Duration::from_secs(30)),
-        Some(0),
+    assert!(
+        run.wait_line(Duration::from_secs(30), |l| l
+            .starts_with("camera-ingest: exited (exit status: 0)"))
+            .is_some(),
         "{}",
-        ingest.stderr_so_far()
+        ns.node_log("camera-ingest")
     );
     assert!(
         seqs.last() == Some(&6) && seqs.windows(2).all(|w| w[0] < w[1]),
@@ -200,21 +214,22 @@ fn depth_normals_stage_marks_the_orfd_road_navigable() {
     assert_eq!((h.messages_out, h.dropped, h.skipped), (6, 0, 0), "{h:?}");
 }
 
-/// Starts camera-ingest on the ORFD frames (looping) and an inference stage
-/// with `inference_toml`; returns (namespace-owned) processes.
-fn orfd_graph(
-    ns: &Namespace,
-    inference_toml: &str,
-    loops: u32,
-) -> (farsight_tests::Proc, farsight_tests::Proc) {
+/// camera-ingest on the ORFD frames (looping) and an inference stage with
+/// `inference_toml`, through `farsight run`; returns it.
+fn orfd_graph(ns: &Namespace, inference_toml: &str, loops: u32) -> farsight_tests::Proc {
     let ingest_cfg = ns.write(
         "camera-ingest.toml",
         &orfd_ingest_toml(&format!("rate_hz = 4.0\nloops = {loops}")),
     );
     let inference_cfg = ns.write("inference.toml", inference_toml);
-    let inference = ns.start_stage("farsight-inference", "inference", &inference_cfg);
-    let ingest = ns.start_stage("farsight-camera-ingest", "camera-ingest", &ingest_cfg);
-    (inference, ingest)
+    ns.run_graph(
+        &[
+            ("inference", &inference_cfg),
+            ("camera-ingest", &ingest_cfg),
+        ],
+        &[],
+        &["perception/front/navigability"],
+    )
 }
 
 #[test]
@@ -295,7 +310,7 @@ fn non_finite_model_output_is_dropped_and_counted_never_published() {
     let health = bus.subscriber(&topics::health("inference")).unwrap();
     // The frames loop until three have been dropped, however many a slow
     // machine skips on the way.
-    let (mut inference, _ingest) = orfd_graph(
+    let run = orfd_graph(
         &ns,
         &format!(
             "camera = \"front\"\nmodel_config = {}\n",
@@ -303,6 +318,7 @@ fn non_finite_model_output_is_dropped_and_counted_never_published() {
         ),
         0,
     );
+    let pid = run.child_instance_pid("inference");
     let end = Instant::now() + Duration::from_secs(120);
     let mut last = None;
     while Instant::now() < end {
@@ -320,15 +336,13 @@ fn non_finite_model_output_is_dropped_and_counted_never_published() {
     }
     let h = last.expect("the stage reports dropped frames in its health");
     assert_eq!(h.messages_out, 0);
-    assert!(
-        inference.stderr_so_far().contains("non-finite values"),
-        "{}",
-        inference.stderr_so_far()
-    );
+    let log = ns.node_log("inference");
+    assert!(log.contains("non-finite values"), "{log}");
+    assert!(pid.is_some());
     assert_eq!(
-        inference.wait_exit(Duration::ZERO),
-        None,
-        "the stage keeps running"
+        run.child_instance_pid("inference"),
+        pid,
+        "the stage keeps running, never restarted"
     );
 }
 
@@ -353,7 +367,7 @@ fn class_table_edits_take_effect_without_a_restart() {
     let nav = bus
         .slice_subscriber(&topics::navigability("front"))
         .unwrap();
-    let (inference, _ingest) = orfd_graph(&ns, &cfg, 0);
+    let _graph = orfd_graph(&ns, &cfg, 0);
     let navigable = |timeout: u64, want_any: bool| {
         let end = Instant::now() + Duration::from_secs(timeout);
         while Instant::now() < end {
@@ -384,11 +398,8 @@ fn class_table_edits_take_effect_without_a_restart() {
         .set_modified(later)
         .unwrap();
     assert!(navigable(60, false), "after the edit nothing is navigable");
-    assert!(
-        inference.stderr_so_far().contains("class table reloaded"),
-        "{}",
-        inference.stderr_so_far()
-    );
+    let log = ns.node_log("inference");
+    assert!(log.contains("class table reloaded"), "{log}");
 }
 
 #[test]
