@@ -6,7 +6,7 @@ use farsight_fuzz::seeds::Cdr;
 use farsight_interfaces::camera::Camera;
 use farsight_interfaces::msg::{ImageHeader, PixelEncoding, Stamp};
 use farsight_interfaces::topics;
-use farsight_tests::{repo_root, Namespace};
+use farsight_tests::{repo_root, toml_string, Namespace};
 use std::time::{Duration, Instant};
 
 fn model(name: &str, w: u32, h: u32, yaw: f64) -> String {
@@ -68,8 +68,8 @@ fn two_cameras_stream_and_broken_files_are_skipped() {
     let cfg = ns.write(
         "camera-ingest.toml",
         &format!(
-            "[[cameras]]\nfolder = {:?}\nrate_hz = 20.0\nloops = 1\n{}\n[[cameras]]\nfolder = \"rear\"\nrate_hz = 20.0\nloops = 1\n{}",
-            orfd.display().to_string(),
+            "[[cameras]]\nfolder = {}\nrate_hz = 20.0\nloops = 1\n{}\n[[cameras]]\nfolder = \"rear\"\nrate_hz = 20.0\nloops = 1\n{}",
+            toml_string(&orfd.display().to_string()),
             model("front", 1280, 720, 0.0),
             model("rear", 64, 48, 180.0)
         ),

@@ -6,7 +6,7 @@
 //! nothing; and an install whose bridge and stages run as user `farsight`.
 
 use farsight_interfaces::transport::net::NetBus;
-use farsight_tests::{bin, free_port, repo_root, Namespace, Proc};
+use farsight_tests::{bin, free_port, repo_root, toml_string, Namespace, Proc};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -290,9 +290,9 @@ fn the_robots_router_lets_laptops_read_and_only_operators_command() {
     let bridge_cfg = ns.write(
         "bridge.toml",
         &format!(
-            "robot = \"robot\"\n[zenoh]\nconfig_file = {:?}\n\
+            "robot = \"robot\"\n[zenoh]\nconfig_file = {}\n\
              [[export]]\ntopic = \"health/bridge\"\n[[import]]\ntopic = \"nav/goal\"\n",
-            router.to_str().unwrap()
+            toml_string(router.to_str().unwrap())
         ),
     );
     // The router config as install.sh writes it, pointed at this test's port and users.

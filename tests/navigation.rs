@@ -79,18 +79,20 @@ fn orfd_road_goal_ahead_drives_forward_and_a_side_goal_turns_toward_it() {
 mod graph {
     use farsight_interfaces::msg::*;
     use farsight_interfaces::topics;
-    use farsight_tests::{repo_root, Namespace, Proc};
+    use farsight_tests::{repo_root, toml_string, Namespace, Proc};
     use std::time::{Duration, Instant};
 
     fn inference(ns: &Namespace) -> Proc {
         let cfg = ns.write(
             "inference.toml",
             &format!(
-                "camera = \"front\"\nmodel_config = {:?}\n",
-                repo_root()
-                    .join("deploy/models/twinlitenet.toml")
-                    .display()
-                    .to_string()
+                "camera = \"front\"\nmodel_config = {}\n",
+                toml_string(
+                    &repo_root()
+                        .join("deploy/models/twinlitenet.toml")
+                        .display()
+                        .to_string()
+                )
             ),
         );
         ns.start_stage("farsight-inference", "inference", &cfg)
@@ -124,8 +126,8 @@ mod graph {
         let ingest_cfg = ns.write(
             "camera-ingest.toml",
             &format!(
-                "[[cameras]]\nfolder = {:?}\nrate_hz = 8.0\nloops = 0\ncapture_time = \"publish\"\n[cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\nxyz_m = [0.0, 0.0, 1.5]\n",
-                repo_root().join("../shared/data/orfd/image_data").display().to_string()
+                "[[cameras]]\nfolder = {}\nrate_hz = 8.0\nloops = 0\ncapture_time = \"publish\"\n[cameras.model]\nname = \"front\"\nwidth = 1280\nheight = 720\nfx = 1487.75\nfy = 1471.06\ncx = 625.01\ncy = 376.48\nxyz_m = [0.0, 0.0, 1.5]\n",
+                toml_string(&repo_root().join("../shared/data/orfd/image_data").display().to_string())
             ),
         );
         // Staleness is judged on capture time: the deadline covers the

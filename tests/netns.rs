@@ -7,7 +7,7 @@
 use farsight_interfaces::msg::{CommandReason, GoalKind};
 use farsight_interfaces::topics;
 use farsight_tests::netns::TwoHosts;
-use farsight_tests::{free_port, repo_root, Namespace, Proc};
+use farsight_tests::{free_port, repo_root, toml_string, Namespace, Proc};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -48,11 +48,11 @@ fn robot(ns: &Namespace, hosts: &TwoHosts, port: u16, speed: &str) -> Vec<Proc> 
         .replace("/etc/farsight/zenoh/users.txt", users.to_str().unwrap());
     let router = ns.write("robot.json5", &router);
     let mut bridge = format!(
-        "robot = \"robot\"\n[zenoh]\nconfig_file = {:?}\n\
+        "robot = \"robot\"\n[zenoh]\nconfig_file = {}\n\
          [[export]]\ntopic = \"camera/front/image\"\ndownsample = 2\ncompression = \"jpeg\"\n\
          [[export]]\ntopic = \"perception/front/navigability\"\ndownsample = 2\ncompression = \"png\"\n\
          [[import]]\ntopic = \"nav/goal\"\n[[import]]\ntopic = \"cmd/teleop\"\n",
-        router.to_str().unwrap()
+        toml_string(router.to_str().unwrap())
     );
     for t in [
         "camera/front/info",

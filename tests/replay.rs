@@ -679,35 +679,47 @@ fn the_orfd_recording_made_over_zenoh_feeds_camera_ingest_and_twinlitenet() {
     // them from the bridge (half size, JPEG). camera-ingest plays the file,
     // paced by the inference stage's output, and TwinLiteNet marks the road.
     use farsight_interfaces::msg::PixelEncoding;
-    use farsight_tests::{navigable_fraction, ORFD_ROAD_AHEAD, ORFD_SKY};
+    use farsight_tests::{navigable_fraction, toml_string, ORFD_ROAD_AHEAD, ORFD_SKY};
     let ns = Namespace::new("orfdreplay");
     let root = repo_root();
     let inference_cfg = ns.write(
         "inference.toml",
         &format!(
-            "camera = \"front\"\nmodel_config = {:?}\n",
-            root.join("deploy/models/twinlitenet.toml")
-                .display()
-                .to_string()
+            "camera = \"front\"\nmodel_config = {}\n",
+            toml_string(
+                &root
+                    .join("deploy/models/twinlitenet.toml")
+                    .display()
+                    .to_string()
+            )
         ),
     );
     let ingest_cfg = ns.write(
         "camera-ingest.toml",
         &format!(
-            "[[cameras]]\nsource = \"mcap\"\nfile = {:?}\ntopic = \"camera/front/image\"\n\
+            "[[cameras]]\nsource = \"mcap\"\nfile = {}\ntopic = \"camera/front/image\"\n\
              pace_by = \"perception/front/navigability\"\n[cameras.model]\nname = \"front\"\n\
              width = 640\nheight = 360\nfx = 743.875\nfy = 735.53\ncx = 312.25\ncy = 188.0\n",
-            root.join("tests/fixtures/orfd/recording.mcap")
-                .display()
-                .to_string()
+            toml_string(
+                &root
+                    .join("tests/fixtures/orfd/recording.mcap")
+                    .display()
+                    .to_string()
+            )
         ),
     );
     let bus = ns.bus("orfd-replay-test");
     let nav = bus
         .slice_subscriber(&topics::navigability("front"))
         .unwrap();
-    let _inference = ns.start_stage("farsight-inference", "inference", &inference_cfg);
-    let mut ingest = ns.start_stage("farsight-camera-ingest", "camera-ingest", &ingest_cfg);
+    let run = ns.run_graph(
+        &[
+            ("inference", &inference_cfg),
+            ("camera-ingest", &ingest_cfg),
+        ],
+        &[],
+        &["perception/front/navigability"],
+    );
     let mut seen = Vec::new();
     let end = Instant::now() + Duration::from_secs(60);
     while seen.len() < 6 && Instant::now() < end {
@@ -731,12 +743,18 @@ fn the_orfd_recording_made_over_zenoh_feeds_camera_ingest_and_twinlitenet() {
         }
         std::thread::sleep(Duration::from_millis(10));
     }
-    assert_eq!(seen, vec![1, 2, 3, 4, 5, 6], "{}", ingest.stderr_so_far());
     assert_eq!(
-        ingest.wait_exit(Duration::from_secs(20)),
-        Some(0),
+        seen,
+        vec![1, 2, 3, 4, 5, 6],
         "{}",
-        ingest.stderr_so_far()
+        ns.node_log("camera-ingest")
+    );
+    assert!(
+        run.wait_line(Duration::from_secs(20), |l| l
+            .starts_with("camera-ingest: exited (exit status: 0)"))
+            .is_some(),
+        "{}",
+        ns.node_log("camera-ingest")
     );
 }
 
