@@ -17,24 +17,37 @@ fn fixture(name: &str) -> PathBuf {
     repo_root().join("tests/fixtures/sim-povnav").join(name)
 }
 
-/// The robot: the three stages, the bridge behind the shipped router
+/// The robot: the three stages and the command mux (a graph through
+/// `farsight run`), the bridge behind the shipped router
 /// config listening on the robot's address, and a replay of the fixture
 /// at `speed` feeding them.
 fn robot(ns: &Namespace, hosts: &TwoHosts, port: u16, speed: &str) -> Vec<Proc> {
     let r = Some(hosts.robot.as_str());
-    let mut procs = Vec::new();
+    let mut configs = Vec::new();
     for s in STAGES {
         let mut text = std::fs::read_to_string(fixture(&format!("{s}.toml"))).unwrap();
         if s == "velocity-servoing" {
             // Behind the command mux, as deployed.
             text = format!("command_topic = \"cmd/autonomy\"\n{text}");
         }
-        let cfg = ns.write(&format!("{s}.toml"), &text);
-        procs.push(ns.start_stage_in(r, &format!("farsight-{s}"), s, &cfg));
+        configs.push((s, ns.write(&format!("{s}.toml"), &text)));
     }
     // The one writer of cmd/velocity: the operator's teleop over autonomy.
-    let mux = ns.write("command-mux.toml", "");
-    procs.push(ns.start_stage_in(r, "farsight-command-mux", "command-mux", &mux));
+    configs.push(("command-mux", ns.write("command-mux.toml", "")));
+    let nodes: Vec<(&str, &std::path::Path)> =
+        configs.iter().map(|(s, c)| (*s, c.as_path())).collect();
+    let mut procs = vec![ns.run_graph_in(
+        r,
+        &nodes,
+        &[
+            "camera/front/image",
+            "camera/front/info",
+            "state/pose",
+            "nav/goal",
+            "cmd/teleop",
+        ],
+        &["cmd/velocity"],
+    )];
     let users = ns.write(
         "users.txt",
         &std::fs::read_to_string(repo_root().join("deploy/zenoh/users.txt")).unwrap(),

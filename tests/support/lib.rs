@@ -140,8 +140,20 @@ impl Namespace {
         nodes: &[&str],
         env: &[(&str, &str)],
     ) -> Proc {
+        self.run_graph_file_in(None, graph, nodes, env)
+    }
+
+    /// [`Namespace::run_graph_file`] in network namespace `netns`.
+    pub fn run_graph_file_in(
+        &self,
+        netns: Option<&str>,
+        graph: &std::path::Path,
+        nodes: &[&str],
+        env: &[(&str, &str)],
+    ) -> Proc {
         let out = self.root.join("run");
-        let run = Proc::start_env(
+        let run = Proc::start_in(
+            netns,
             "farsight",
             &[
                 "run",
@@ -174,6 +186,17 @@ impl Namespace {
     /// ([`Namespace::run_graph_file`]).
     pub fn run_graph(
         &self,
+        nodes: &[(&str, &std::path::Path)],
+        test_writes: &[&str],
+        test_reads: &[&str],
+    ) -> Proc {
+        self.run_graph_in(None, nodes, test_writes, test_reads)
+    }
+
+    /// [`Namespace::run_graph`] in network namespace `netns`.
+    pub fn run_graph_in(
+        &self,
+        netns: Option<&str>,
         nodes: &[(&str, &std::path::Path)],
         test_writes: &[&str],
         test_reads: &[&str],
@@ -215,7 +238,7 @@ impl Namespace {
             &toml::to_string(&graph).expect("a TOML table"),
         );
         let names: Vec<&str> = nodes.iter().map(|(n, _)| *n).collect();
-        self.run_graph_file(&file, &names, &[])
+        self.run_graph_file_in(netns, &file, &names, &[])
     }
 
     /// What node `node` of a graph started by [`Namespace::run_graph_file`]
