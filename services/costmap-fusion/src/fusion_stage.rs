@@ -25,12 +25,13 @@ use crate::swath::PolarGeometry;
 use farsight_inference::class_table::ClassTableFile;
 use farsight_inference::normals::RayTable;
 use farsight_interfaces::camera::Camera;
-use farsight_interfaces::message::{Costmap, Image, PolarBins};
+use farsight_interfaces::message::{Costmap, Image, Message, PolarBins};
 use farsight_interfaces::msg::{CostCell, CostmapLayer, HealthState, PixelEncoding, Pose};
 use farsight_interfaces::topics;
 use farsight_stage::CameraModels;
 use farsight_stage::{
-    ClockSource, Freshness, InputId, Need, Ports, Stage, StageEnv, StageInputs, StageKind, Step,
+    ClockSource, Freshness, Inbox, InputId, Need, Ports, Stage, StageEnv, StageInputs, StageKind,
+    Step,
 };
 use std::time::Duration;
 
@@ -52,6 +53,9 @@ pub struct FusionStage {
     period_ns: u64,
     /// When the next maps are due on the wall clock; `None`: at once.
     next_publish_ns: Option<u64>,
+    /// Answering the far field: near-field inputs that came in a step
+    /// without one (a tick), held for the frame's far field (see `step`).
+    held: Vec<Option<Message>>,
 }
 
 struct PortIds {
@@ -192,6 +196,7 @@ impl StageKind for FusionStage {
             near_in,
             far_in,
             next_publish_ns: None,
+            held: Vec::new(),
         })
     }
 }
@@ -215,8 +220,23 @@ impl Stage for FusionStage {
         self.cameras.refresh(step.inbox, |name, e| {
             health.dropped(&format_args!("{name}: camera info: {e}"))
         });
+        // Answering the far field, the near field goes into the map after
+        // the frame's far field, as in the in-process executor (which never
+        // ticks): one that a process's tick took in is held until then
+        // (the newest per input), not applied first.
+        let holding = self.config.answer_far_field;
+        if holding {
+            self.hold_near_field(step.inbox);
+        }
         // Every input that arrived is used, whichever one woke the step.
         let far = self.take_polar(step);
+        if holding {
+            if !far {
+                self.publish(step, false);
+                return;
+            }
+            self.release_near_field(step.inbox);
+        }
         let local = self.take_locals(step);
         let frames = self.take_frames(step);
         // Answering the far field: a near field that came in on a tick (a
@@ -235,6 +255,37 @@ impl Stage for FusionStage {
 }
 
 impl FusionStage {
+    /// The near-field inputs' ports: local costmaps, then depth and class frames.
+    fn near_ports(&self) -> Vec<usize> {
+        self.port
+            .locals
+            .iter()
+            .chain(&self.port.frames)
+            .copied()
+            .collect()
+    }
+
+    /// Moves this step's near-field messages from the inbox to `held`.
+    fn hold_near_field(&mut self, inbox: &mut Inbox) {
+        let ports = self.near_ports();
+        self.held.resize_with(ports.len(), || None);
+        for (slot, port) in self.held.iter_mut().zip(ports) {
+            if let Some(m) = inbox.take_any(port) {
+                *slot = Some(m);
+            }
+        }
+    }
+
+    /// Puts the held near-field messages back in the inbox for this step.
+    fn release_near_field(&mut self, inbox: &mut Inbox) {
+        let ports = self.near_ports();
+        for (slot, port) in self.held.iter_mut().zip(ports) {
+            if let Some(m) = slot.take() {
+                inbox.put(port, m);
+            }
+        }
+    }
+
     fn take_pose(&mut self, step: &mut Step<'_>) {
         let Some(p) = step.inbox.take::<Pose>(self.port.pose) else {
             return;
@@ -596,7 +647,7 @@ mod tests {
             !h.stage.ports().inputs[h.stage.ports().input_index("costmap/local").unwrap()].wakes,
             "the near field waits for the far field"
         );
-        // The near field alone (a tick that found it): into the map, no maps out.
+        // The near field alone (a tick that found it): held, no maps out.
         h.put("state/pose", pose(1, 10 * S));
         h.put("costmap/local", local(1, 10 * S));
         assert!(h.step(Wake::Tick, 10 * S).is_empty());
@@ -617,6 +668,50 @@ mod tests {
                 .unwrap_err()
                 .to_string();
             assert!(e.contains("answer_far_field"), "{e}");
+        }
+    }
+
+    #[test]
+    fn answering_the_far_field_a_near_field_taken_on_a_tick_waits_for_it() {
+        // A near field 61 x 61 m, overlapping the far field's first ring
+        // (25-50 m): applied before the far field, it would leave those
+        // cells out of the far-field layer. The process's tick must give
+        // the maps the in-process executor gives (both in one step).
+        let config =
+            "width_cells = 121\nheight_cells = 121\nclock = \"stamps\"\nanswer_far_field = true\n";
+        let big_local = || {
+            let mut m = local(1, 10 * S);
+            let side = 61usize;
+            m.header.width = side as u32;
+            m.header.height = side as u32;
+            m.header.x_min_m = -30.0;
+            m.header.y_max_m = 30.0;
+            m.data = vec![m.data[0]; side * side];
+            m
+        };
+        let run = |tick_first: bool| {
+            let mut h = stage(config);
+            h.put("state/pose", pose(1, 10 * S));
+            h.put("costmap/local", big_local());
+            if tick_first {
+                assert!(h.step(Wake::Tick, 10 * S).is_empty());
+            }
+            let wake = h.wake_on("bins/polar");
+            h.put("bins/polar", polar(1, 10 * S));
+            maps(h.step(wake, 10 * S))
+        };
+        let (one_step, tick_first) = (run(false), run(true));
+        assert_eq!(one_step.len(), 3);
+        // Bit for bit (unobserved cells are NaN).
+        let bits = |m: &Costmap| -> Vec<(u32, u32)> {
+            m.data
+                .iter()
+                .map(|c| (c.cost_s_per_m.to_bits(), c.variance.to_bits()))
+                .collect()
+        };
+        for ((topic, a), (_, b)) in one_step.iter().zip(&tick_first) {
+            let differ = bits(a).iter().zip(bits(b)).filter(|(x, y)| *x != y).count();
+            assert_eq!(differ, 0, "{topic}: cells that differ");
         }
     }
 

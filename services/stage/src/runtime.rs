@@ -142,6 +142,11 @@ impl Inbox {
         }
     }
 
+    /// Takes input `port`'s message, whatever its kind.
+    pub fn take_any(&mut self, port: usize) -> Option<Message> {
+        self.slots.get_mut(port)?.take()
+    }
+
     /// Whether input `port` holds a message.
     pub fn has(&self, port: usize) -> bool {
         self.slots.get(port).is_some_and(Option::is_some)
