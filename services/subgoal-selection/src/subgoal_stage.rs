@@ -70,7 +70,15 @@ struct Context {
     /// With a `guide`: its input and its latest subgoal, this instance's goal.
     guide_in: Option<InputId>,
     guide: Option<Subgoal>,
+    /// The latest poses, oldest first: a guide's subgoal is in the robot
+    /// frame of the frame it was made from, so it is placed with the pose
+    /// of that frame's capture, not the newest one.
+    poses: std::collections::VecDeque<Pose>,
 }
+
+/// Poses kept for [`Context::pose_at`]: a few seconds at a localisation
+/// stack's 10-50 Hz.
+const POSE_HISTORY: usize = 128;
 
 /// Whether a frame can be planned on: with a guide, only together with the
 /// guide's subgoal of the same frame (an exact-time join on the frame
@@ -244,6 +252,7 @@ impl StageKind for SubgoalStage {
                 pose_in,
                 guide_in,
                 guide: None,
+                poses: Default::default(),
             },
             method,
         })
@@ -276,6 +285,10 @@ impl Context {
         if let Some(p) = step.inbox.take::<Pose>(self.port.pose) {
             self.inputs.consumed(self.pose_in, p.stamp);
             self.tracker.set_pose(p);
+            if self.poses.len() == POSE_HISTORY {
+                self.poses.pop_front();
+            }
+            self.poses.push_back(p);
         }
         match self.guide_in {
             Some(id) => {
@@ -290,6 +303,17 @@ impl Context {
                 }
             }
         }
+    }
+
+    /// The pose at capture time `t_ns`: the newest one captured at or
+    /// before it, or the oldest kept when none is that old.
+    fn pose_at(&self, t_ns: u64) -> Option<Pose> {
+        self.poses
+            .iter()
+            .rev()
+            .find(|p| p.stamp.capture_time_ns <= t_ns)
+            .or(self.poses.front())
+            .copied()
     }
 
     /// Whether frame `frame_seq` can be planned on now (see [`Join`]).
@@ -749,7 +773,12 @@ impl MapPlan {
         };
         let robot = [p.position_m[0], p.position_m[1]];
         let goal_robot = [distance * bearing.cos(), distance * bearing.sin()];
-        let goal = p.to_world_frame(goal_robot);
+        // A guide's subgoal goes where its frame's robot was looking.
+        let frame_pose = match (cx.guide_in, cx.guide) {
+            (Some(_), Some(g)) => cx.pose_at(g.stamp.capture_time_ns).unwrap_or(p),
+            _ => p,
+        };
+        let goal = frame_pose.to_world_frame(goal_robot);
         if let MapPlanner::DStarLite(pl) = &mut self.planner {
             let requested = self.requested_goal_m;
             let new_goal = pl.as_ref().is_none_or(|pl| {
@@ -1347,6 +1376,44 @@ mod tests {
         );
         assert!(h.step(Wake::Tick, 10 * S + S / 20).is_empty());
         assert_eq!(grid_goal(&h), goal_7, "the grid is frame 7's");
+    }
+
+    #[test]
+    fn on_the_wall_clock_a_guides_subgoal_is_placed_with_its_frames_pose() {
+        const GUIDE: &str = "nav/subgoal/lrn";
+        let c = cases(&format!("guide = \"{GUIDE}\"\nclock = \"wall\""))
+            .into_iter()
+            .find(|c| c.name == "dstar_lite")
+            .unwrap();
+        let mut h = c.stage();
+        // The guide's frame was captured at 10 s, the robot at the origin
+        // facing east; by the time its subgoal (10 m ahead, 10 m left)
+        // arrives the robot has turned north and moved 2 m.
+        h.put("state/pose", pose(at(1, 10 * S)));
+        h.step(Wake::Tick, 10 * S);
+        h.put(
+            "state/pose",
+            Pose {
+                position_m: [2.0, 0.0, 0.0],
+                yaw_rad: std::f64::consts::FRAC_PI_2,
+                ..pose(at(2, 10 * S + S / 5))
+            },
+        );
+        h.put(GUIDE, guide(1));
+        c.put_primary(&mut h, at(2, 10 * S + S / 5));
+        let out = h.step(h.wake_on(c.primary), 10 * S + S / 5);
+        assert_eq!(topics_of(&out), c.outputs);
+        let Method::Map(m) = &h.stage.method else {
+            unreachable!()
+        };
+        let MapPlanner::DStarLite(Some(pl)) = &m.planner else {
+            panic!("no planning grid")
+        };
+        let g = pl.goal_m();
+        assert!(
+            (g[0] - 10.0).abs() < 1e-9 && (g[1] - 10.0).abs() < 1e-9,
+            "placed with the pose at 10 s: {g:?}"
+        );
     }
 
     #[test]
