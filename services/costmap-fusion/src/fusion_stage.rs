@@ -53,9 +53,10 @@ pub struct FusionStage {
     period_ns: u64,
     /// When the next maps are due on the wall clock; `None`: at once.
     next_publish_ns: Option<u64>,
-    /// Answering the far field: near-field inputs that came in a step
-    /// without one (a tick), held for the frame's far field (see `step`).
-    held: Vec<Option<Message>>,
+    /// Answering the far field: per near-field input port, the message
+    /// that came in a step without a far field (a tick), held for the
+    /// frame's far field (see `step`).
+    held: Vec<(usize, Option<Message>)>,
 }
 
 struct PortIds {
@@ -105,7 +106,7 @@ impl StageKind for FusionStage {
         // and counted, only kept out of the map (the "no far field" baseline).
         let polar = ports.waking_input(topics::polar_bins().name());
         // Answering the far field, a near field waits in the inbox for it.
-        let locals = config
+        let locals: Vec<usize> = config
             .local_costmaps
             .iter()
             .map(|n| {
@@ -170,6 +171,9 @@ impl StageKind for FusionStage {
             };
             inputs.add(topics::polar_bins().name(), need)
         });
+        // The near-field inputs' ports (local costmaps, then depth and
+        // class frames), each with the message held for the far field.
+        let held = locals.iter().chain(&frames).map(|&p| (p, None)).collect();
         Ok(Self {
             map: FusionMap::new(
                 config.width_cells,
@@ -196,7 +200,7 @@ impl StageKind for FusionStage {
             near_in,
             far_in,
             next_publish_ns: None,
-            held: Vec::new(),
+            held,
         })
     }
 }
@@ -255,22 +259,10 @@ impl Stage for FusionStage {
 }
 
 impl FusionStage {
-    /// The near-field inputs' ports: local costmaps, then depth and class frames.
-    fn near_ports(&self) -> Vec<usize> {
-        self.port
-            .locals
-            .iter()
-            .chain(&self.port.frames)
-            .copied()
-            .collect()
-    }
-
     /// Moves this step's near-field messages from the inbox to `held`.
     fn hold_near_field(&mut self, inbox: &mut Inbox) {
-        let ports = self.near_ports();
-        self.held.resize_with(ports.len(), || None);
-        for (slot, port) in self.held.iter_mut().zip(ports) {
-            if let Some(m) = inbox.take_any(port) {
+        for (port, slot) in &mut self.held {
+            if let Some(m) = inbox.take_any(*port) {
                 *slot = Some(m);
             }
         }
@@ -278,10 +270,9 @@ impl FusionStage {
 
     /// Puts the held near-field messages back in the inbox for this step.
     fn release_near_field(&mut self, inbox: &mut Inbox) {
-        let ports = self.near_ports();
-        for (slot, port) in self.held.iter_mut().zip(ports) {
+        for (port, slot) in &mut self.held {
             if let Some(m) = slot.take() {
-                inbox.put(port, m);
+                inbox.put(*port, m);
             }
         }
     }
