@@ -39,5 +39,6 @@ pub mod fixed;
 pub mod geo;
 pub mod message;
 pub mod msg;
+pub mod pattern;
 pub mod topics;
 pub mod transport;

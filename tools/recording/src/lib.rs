@@ -38,7 +38,7 @@ pub mod diff;
 pub mod foxglove;
 pub mod mcap_file;
 pub mod node;
-pub mod pattern;
+pub use farsight_interfaces::pattern;
 pub mod read;
 pub mod record;
 pub mod replay;

@@ -1,10 +1,11 @@
-//! Topic selection by glob pattern: `*` matches within one path segment,
+//! Topic selection by glob pattern (the recorder's topics, `farsight foxglove`'s
+//! rate rules): `*` matches within one path segment,
 //! `**` across segments (`camera/*/image`, `costmap/**`, `**`).
 
 /// Whether `topic` matches `pattern`.
 ///
 /// ```
-/// use farsight_recording::pattern::matches;
+/// use farsight_interfaces::pattern::matches;
 /// assert!(matches("camera/*/image", "camera/front/image"));
 /// assert!(!matches("camera/*", "camera/front/image"));
 /// assert!(matches("**", "nav/path/planned"));
