@@ -129,6 +129,17 @@ fn packed_rgb_or_gray(
     Ok((out, false))
 }
 
+/// Packed RGB8 pixels of an RGB8, BGR8, RGBA8 or MONO8 image (what
+/// overlays and viewers draw on).
+pub fn to_rgb8(header: &ImageHeader, data: &[u8]) -> Result<Vec<u8>, ImageError> {
+    let (packed, gray) = packed_rgb_or_gray(header, data, "rgb8 conversion")?;
+    Ok(if gray {
+        packed.iter().flat_map(|&g| [g, g, g]).collect()
+    } else {
+        packed
+    })
+}
+
 /// Encodes RGB8/BGR8/RGBA8/MONO8/MONO16 as PNG (MONO16 keeps 16 bits; f32
 /// heatmaps should be scaled to MONO16 first).
 pub fn encode_png(header: &ImageHeader, data: &[u8]) -> Result<Vec<u8>, ImageError> {

@@ -71,6 +71,10 @@ pub struct DemoArgs {
     /// Frames per second [default: graphs/orfd.toml's].
     #[arg(long)]
     rate_hz: Option<f64>,
+    /// Serve the run live to the Foxglove app (`farsight foxglove`) on
+    /// ws://127.0.0.1:PORT (simulation demos).
+    #[arg(long, value_name = "PORT")]
+    foxglove_port: Option<u16>,
 }
 
 pub struct Stage(pub(crate) Child);
@@ -134,6 +138,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
             max_time_s: a.max_time_s,
             realtime: a.realtime,
             recorder_queue_depth: a.recorder_queue_depth,
+            foxglove_port: a.foxglove_port,
         });
     }
     let out = a.out.clone();

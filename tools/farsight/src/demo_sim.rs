@@ -52,6 +52,8 @@ pub struct SimDemo {
     pub max_time_s: f64,
     pub realtime: bool,
     pub recorder_queue_depth: usize,
+    /// Serve the run live to the Foxglove app on this port.
+    pub foxglove_port: Option<u16>,
 }
 
 /// The recorder's instance name: its health topic is its lock-step answer.
@@ -77,57 +79,76 @@ fn recorded_topics(graph: &crate::graph::Graph) -> Vec<String> {
 /// lock-step answer set (it reports each command it has written, and the
 /// simulator waits for that); stopped (and its file finished) when the
 /// returned guard drops.
-fn start_recorder(out: &Path, prefix: &str, queues: &str, topics: &[String]) -> Result<Recorder> {
-    use std::io::BufRead;
-    let log = std::fs::File::create(out.join("recorder.log"))?;
-    let mut child = Command::new(std::env::current_exe()?)
-        .args(["record", "--topics", &topics.join(",")])
+fn start_recorder(out: &Path, prefix: &str, queues: &str, topics: &[String]) -> Result<Reporting> {
+    let mut cmd = Command::new(std::env::current_exe()?);
+    cmd.args(["record", "--topics", &topics.join(",")])
         .args([
             "--ack",
             farsight_interfaces::topics::velocity_command().name(),
         ])
         .args(["--instance", RECORDER, "--out"])
         .arg(out.join("recording.mcap"))
+        .env(QUEUES_ENV, queues);
+    start_reporting(cmd, "recorder", "farsight-record ready", out, prefix)
+}
+
+/// `farsight foxglove` on `port`: the run live in the Foxglove app.
+fn start_foxglove(out: &Path, prefix: &str, port: u16) -> Result<Reporting> {
+    let mut cmd = Command::new(std::env::current_exe()?);
+    cmd.args(["foxglove", "--port", &port.to_string()]);
+    let child = start_reporting(cmd, "foxglove", "farsight-foxglove ready", out, prefix)?;
+    println!("foxglove: ws://127.0.0.1:{port} (open it in the Foxglove app; layout: deploy/foxglove/farsight-layout.json)");
+    Ok(child)
+}
+
+/// A child `farsight` tool on the demo's bus, started once it prints its
+/// ready line; its log goes to `out/<name>.log`, its closing report to our
+/// stdout and `out/<name>-report.txt`.
+fn start_reporting(
+    mut cmd: Command,
+    name: &str,
+    ready: &str,
+    out: &Path,
+    prefix: &str,
+) -> Result<Reporting> {
+    use std::io::BufRead;
+    let log_path = out.join(format!("{name}.log"));
+    let mut child = cmd
         .env("FARSIGHT_IPC_PREFIX", prefix)
-        .env(QUEUES_ENV, queues)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
-        .stderr(log)
+        .stderr(std::fs::File::create(&log_path)?)
         .spawn()
-        .context("starting farsight record")?;
+        .with_context(|| format!("starting farsight {name}"))?;
     let mut stdout = std::io::BufReader::new(child.stdout.take().expect("piped"));
     let mut line = String::new();
     stdout.read_line(&mut line)?;
-    if line.trim() != "farsight-record ready" {
-        bail!(
-            "farsight record did not start; see {}",
-            out.join("recorder.log").display()
-        );
+    if !line.trim().starts_with(ready) {
+        bail!("farsight {name} did not start; see {}", log_path.display());
     }
-    // Its closing report (messages and skips per topic) goes to our stdout
-    // and to recorder-report.txt.
-    let mut report = std::fs::File::create(out.join("recorder-report.txt"))?;
+    let mut report = std::fs::File::create(out.join(format!("{name}-report.txt")))?;
+    let name = name.to_string();
     let reader = std::thread::spawn(move || {
         use std::io::Write;
         for line in stdout.lines().map_while(Result::ok) {
-            println!("recorder: {line}");
+            println!("{name}: {line}");
             let _ = writeln!(report, "{line}");
         }
     });
-    Ok(Recorder {
+    Ok(Reporting {
         child: Some(Stage(child)),
         reader: Some(reader),
     })
 }
 
-/// The recorder's process and the thread that passes its report on.
-struct Recorder {
+/// A child tool's process and the thread that passes its report on.
+struct Reporting {
     child: Option<Stage>,
     reader: Option<std::thread::JoinHandle<()>>,
 }
 
-impl Drop for Recorder {
-    /// Stops the recorder (its file finished) and waits for its report.
+impl Drop for Reporting {
+    /// Stops the child (a recorder finishes its file) and waits for its report.
     fn drop(&mut self) {
         drop(self.child.take());
         if let Some(r) = self.reader.take() {
@@ -259,6 +280,10 @@ pub fn run(d: SimDemo) -> Result<()> {
     // Every topic of the graph goes into the recording, each subscribed
     // before the simulator's first frame.
     let recorder = start_recorder(&out, &prefix, &queues, &recorded)?;
+    let foxglove = d
+        .foxglove_port
+        .map(|port| start_foxglove(&out, &prefix, port))
+        .transpose()?;
     let mut cmd = Command::new(sim);
     cmd.args([
         "run",
@@ -287,6 +312,7 @@ pub fn run(d: SimDemo) -> Result<()> {
     let status = cmd.status().context("running farsight-sim")?;
     drop(stages);
     drop(recorder);
+    drop(foxglove);
     if !status.success() {
         bail!(
             "farsight-sim failed ({status}); stage logs are in {}",

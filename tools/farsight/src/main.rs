@@ -11,6 +11,7 @@
 //! farsight replay run.mcap --speed 4                                # or --lockstep --driving T --answer T
 //! farsight diff golden.mcap run.mcap                                # field-by-field comparison
 //! farsight dataset run.mcap --out data/train                        # LRN + FITAM labels from a recording
+//! farsight foxglove                                                # live view for the Foxglove app (ws://127.0.0.1:8765)
 //! farsight inspect --connect tcp/ROBOT:7447 --robot NAME            # the graph from a laptop
 //! farsight graph check graphs/robot.toml --mermaid robot.mmd         # nodes, topics, what would not run
 //! farsight run graphs/orfd.toml --out run                           # start and supervise a graph's nodes
@@ -26,6 +27,7 @@ mod chaos;
 mod dataset;
 mod demo;
 mod demo_sim;
+mod foxglove;
 mod graph;
 mod hip_library;
 mod infer;
@@ -76,6 +78,9 @@ enum Command {
     Diff(recording::DiffArgs),
     /// The robot's graph from a laptop over zenoh: stages, health, rates, latency; echo; snapshot PNGs.
     Inspect(inspect::InspectArgs),
+    /// Watch the graph live in the Foxglove app: a read-only Foxglove WebSocket
+    /// server fed from shared memory or, with --connect, a robot's bridge.
+    Foxglove(foxglove::FoxgloveArgs),
     /// Graph files (graphs/*.toml): check one, draw it as Mermaid or DOT.
     #[command(subcommand)]
     Graph(graph::GraphCommand),
@@ -106,6 +111,7 @@ fn main() {
         Command::Replay(a) => recording::run_replay(a),
         Command::Diff(a) => recording::run_diff(a),
         Command::Inspect(a) => inspect::run(a),
+        Command::Foxglove(a) => foxglove::run(a),
         Command::Graph(c) => graph::run(c),
         Command::Run(a) => run::run(a),
     };
