@@ -924,3 +924,135 @@ fn finite_or_zero(v: f32) -> f64 {
         0.0
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use farsight_interfaces::camera::{CameraModel, Mount};
+
+    fn front_camera() -> Camera {
+        Camera::new(
+            4,
+            "front",
+            CameraModel::pinhole(1280, 720, 800.0, 800.0, 640.0, 360.0),
+            Mount::from_xyz_rpy_deg([0.5, 0.0, 1.2], [0.0, 10.0, 0.0]),
+        )
+    }
+
+    fn frame(camera: &Camera, t_ns: u64) -> Message {
+        let (w, h) = (camera.model.width, camera.model.height);
+        Message::Image(Image {
+            header: ImageHeader::packed(Stamp::new(1, t_ns), camera.id, w, h, PixelEncoding::RGB8),
+            data: vec![90; (w * h * 3) as usize],
+        })
+    }
+
+    #[test]
+    fn a_frame_goes_out_downscaled_with_a_calibration_and_transforms_for_it() {
+        let camera = front_camera();
+        let mut view = View::new(ViewConfig::default()).unwrap();
+        let info = Message::CameraInfo(camera.to_info(Stamp::new(1, 1_000)));
+        assert!(
+            view.on_message("camera/front/info", &info).is_empty(),
+            "no frame yet: nothing to calibrate"
+        );
+        let out = view.on_message("camera/front/image", &frame(&camera, 1_000));
+        let FoxMessage::CompressedImage(img) = &out[0].message else {
+            panic!("{out:?}")
+        };
+        assert_eq!(
+            (out[0].topic.as_str(), img.frame_id.as_str()),
+            ("/camera/front/image", "camera_front_optical_frame")
+        );
+        let (h, _) = imaging::decode_jpeg(&img.data).unwrap();
+        assert_eq!((h.width, h.height), (640, 360), "1280 px halved to fit 640");
+
+        let out = view.on_message("camera/front/info", &info);
+        let FoxMessage::CameraCalibration(c) = &out[0].message else {
+            panic!("{out:?}")
+        };
+        assert_eq!((c.width, c.height), (640, 360));
+        assert_eq!(
+            c.k,
+            vec![400.0, 0.0, 320.0, 0.0, 400.0, 180.0, 0.0, 0.0, 1.0]
+        );
+
+        let pose = Pose {
+            stamp: Stamp::new(1, 1_000),
+            position_m: [3.0, 4.0, 0.0],
+            yaw_rad: 1.0,
+            ..Default::default()
+        };
+        let out = view.on_message("state/pose", &Message::Pose(pose));
+        let tf = out
+            .iter()
+            .find_map(|o| match &o.message {
+                FoxMessage::FrameTransforms(t) => Some(t),
+                _ => None,
+            })
+            .expect("transforms with the pose");
+        let cam = tf
+            .transforms
+            .iter()
+            .find(|t| t.child_frame_id == "camera_front_optical_frame")
+            .unwrap();
+        assert_eq!(cam.parent_frame_id, "base_link");
+        let q = camera.mount.robot_from_optical.quaternion();
+        let r = cam.rotation.unwrap();
+        assert_eq!([r.x, r.y, r.z, r.w], [q.i, q.j, q.k, q.w]);
+        let base = tf
+            .transforms
+            .iter()
+            .find(|t| t.child_frame_id == "base_link")
+            .unwrap();
+        assert_eq!(base.translation.unwrap().x, 3.0);
+
+        let bad = Pose {
+            position_m: [f64::NAN, 0.0, 0.0],
+            ..pose
+        };
+        assert!(view
+            .on_message("state/pose", &Message::Pose(bad))
+            .is_empty());
+        assert_eq!(
+            view.dropped().get("state/pose"),
+            Some(&1),
+            "a NaN pose is counted, not shown"
+        );
+    }
+
+    #[test]
+    fn costmap_rows_are_flipped_to_grow_north_and_lethal_cells_are_capped() {
+        let h = CostmapHeader {
+            width: 2,
+            height: 2,
+            resolution_m: 1.0,
+            x_min_m: 10.0,
+            y_max_m: 20.0,
+            ..Default::default()
+        };
+        let cell = |c| CostCell {
+            cost_s_per_m: c,
+            variance: 0.0,
+        };
+        let c = Costmap {
+            header: h,
+            data: vec![cell(1.0), cell(2.0), cell(f32::INFINITY), cell(4.0)],
+        };
+        let FoxMessage::Grid(g) = costmap_grid(&c).unwrap() else {
+            panic!()
+        };
+        let first = f32::from_le_bytes(g.data[0..4].try_into().unwrap());
+        assert_eq!(
+            first, DISPLAY_COST_CAP_S_PER_M,
+            "the southern row (farsight row 1) comes first"
+        );
+        let p = g.pose.unwrap().position.unwrap();
+        assert_eq!((p.x, p.y), (9.5, 18.5));
+        let short = Costmap {
+            header: h,
+            data: vec![cell(1.0)],
+        };
+        assert!(costmap_grid(&short).unwrap_err().contains("2x2"));
+    }
+}
