@@ -391,6 +391,9 @@ pub struct Proc {
     child: Option<Child>,
     lines: Receiver<(Instant, String)>,
     stderr: Receiver<String>,
+    /// Every stderr line read so far: [`Proc::stderr_so_far`] keeps what it
+    /// read, so a failure message can show the same lines an assert saw.
+    stderr_seen: std::cell::RefCell<Vec<String>>,
 }
 
 impl Proc {
@@ -468,6 +471,7 @@ impl Proc {
             child: Some(child),
             lines,
             stderr,
+            stderr_seen: Default::default(),
         }
     }
 
@@ -575,21 +579,33 @@ impl Proc {
     /// Everything the process wrote to stderr, once it has exited: waits (up
     /// to 2 s) until its reader has seen the end of the stream.
     pub fn stderr_to_end(&self) -> String {
-        let end = Instant::now() + Duration::from_secs(2);
-        let mut lines = Vec::new();
-        loop {
-            let left = end.saturating_duration_since(Instant::now());
-            match self.stderr.recv_timeout(left) {
-                Ok(l) => lines.push(l),
-                Err(_) => break,
-            }
-        }
-        lines.join("\n")
+        self.read_stderr(Some(Duration::from_secs(2)))
     }
 
-    /// Everything written to stderr so far (for failure messages).
+    /// Everything written to stderr so far. Once [`Proc::wait_exit`] has seen
+    /// the process end, this waits (up to 2 s) for the end of the stream, so
+    /// the last lines a process wrote before it exited are never missed.
     pub fn stderr_so_far(&self) -> String {
-        self.stderr.try_iter().collect::<Vec<_>>().join("\n")
+        let exited = self.child.is_none();
+        self.read_stderr(exited.then_some(Duration::from_secs(2)))
+    }
+
+    fn read_stderr(&self, to_end: Option<Duration>) -> String {
+        let mut seen = self.stderr_seen.borrow_mut();
+        match to_end {
+            None => seen.extend(self.stderr.try_iter()),
+            Some(limit) => {
+                let end = Instant::now() + limit;
+                loop {
+                    let left = end.saturating_duration_since(Instant::now());
+                    match self.stderr.recv_timeout(left) {
+                        Ok(l) => seen.push(l),
+                        Err(_) => break,
+                    }
+                }
+            }
+        }
+        seen.join("\n")
     }
 
     /// Waits for the process to exit; returns its exit code.
