@@ -13,13 +13,16 @@
 // messages, schema-valid, first error, bytes, capture-time rate, and the
 // newest decoded message (large byte fields shortened).
 
-import { FoxgloveClient } from "@foxglove/ws-protocol";
+// CommonJS packages: their exports object is the default import.
+import wsProtocol from "@foxglove/ws-protocol";
 import { WebSocket } from "ws";
 import protobuf from "protobufjs";
 import descriptor from "protobufjs/ext/descriptor/index.js";
 import Ajv from "ajv";
-import * as schemas from "@foxglove/schemas/jsonschema";
+import schemas from "@foxglove/schemas/jsonschema.js";
 import { writeFileSync } from "node:fs";
+
+const { FoxgloveClient } = wsProtocol;
 
 const args = process.argv.slice(2);
 const url = args[0];
@@ -89,7 +92,11 @@ function shorten(v) {
 
 const channels = new Map(); // id -> state
 const bySub = new Map();
-const ws = new WebSocket(url, [FoxgloveClient.SUPPORTED_SUBPROTOCOL]);
+// The foxglove SDK's server names the ws-protocol v1 spec
+// "foxglove.sdk.v1" (inline schemas; not "foxglove.sdk.v1.1", whose schema
+// tables this client does not read); the npm client speaks that spec and
+// names it "foxglove.websocket.v1".
+const ws = new WebSocket(url, ["foxglove.sdk.v1", FoxgloveClient.SUPPORTED_SUBPROTOCOL]);
 const client = new FoxgloveClient({ ws });
 const started = Date.now();
 let serverInfo = null;

@@ -113,7 +113,7 @@ fn start_reporting(
 ) -> Result<Reporting> {
     use std::io::BufRead;
     let log_path = out.join(format!("{name}.log"));
-    let mut child = cmd
+    let mut child = crate::demo::die_with_parent(&mut cmd)
         .env("FARSIGHT_IPC_PREFIX", prefix)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
@@ -285,18 +285,19 @@ pub fn run(d: SimDemo) -> Result<()> {
         .map(|port| start_foxglove(&out, &prefix, port))
         .transpose()?;
     let mut cmd = Command::new(sim);
-    cmd.args([
-        "run",
-        "--scenario",
-        &d.scenario,
-        "--seed",
-        &d.seed.to_string(),
-    ])
-    .args(["--max-time-s", &d.max_time_s.to_string(), "--out"])
-    .arg(&out)
-    .env("FARSIGHT_IPC_PREFIX", &prefix)
-    .env(QUEUES_ENV, &queues)
-    .stdin(Stdio::null());
+    crate::demo::die_with_parent(&mut cmd)
+        .args([
+            "run",
+            "--scenario",
+            &d.scenario,
+            "--seed",
+            &d.seed.to_string(),
+        ])
+        .args(["--max-time-s", &d.max_time_s.to_string(), "--out"])
+        .arg(&out)
+        .env("FARSIGHT_IPC_PREFIX", &prefix)
+        .env(QUEUES_ENV, &queues)
+        .stdin(Stdio::null());
     cmd.args(["--cameras", &sim_options.cameras.join(",")]);
     if d.realtime {
         cmd.args(["--clock", "realtime"]);

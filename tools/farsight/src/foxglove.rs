@@ -104,16 +104,22 @@ pub fn run(a: FoxgloveArgs) -> Result<()> {
             &opts,
         )
     };
+    // The closing report; its reader (the demo) may be gone already, and a
+    // closed stdout is no reason to fail.
+    use std::io::Write;
+    let mut stdout = std::io::stdout().lock();
     for (topic, s) in server.stats() {
-        println!(
+        let _ = writeln!(
+            stdout,
             "{topic:<34} {:>8} messages {:>10.3} MB",
             s.messages,
             s.bytes as f64 / 1e6
         );
     }
     for (topic, n) in view.dropped() {
-        println!("{topic:<34} {n:>8} not shown (see the log)");
+        let _ = writeln!(stdout, "{topic:<34} {n:>8} not shown (see the log)");
     }
+    drop(stdout);
     server.stop();
     Ok(result?)
 }

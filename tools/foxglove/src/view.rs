@@ -50,8 +50,9 @@ pub struct ViewConfig {
 }
 
 impl Default for ViewConfig {
-    /// Sized for a 10 Mbit/s link (1.25 MB/s): cameras and overlays at 5 Hz
-    /// and 640 px, costmaps at 1 Hz, pose, transforms and commands at 10 Hz.
+    /// Sized for a 10 Mbit/s link (1.25 MB/s): cameras, overlays and LRN
+    /// bins at 5 Hz and 640 px, costmaps and the goal at 1 Hz, health at
+    /// 2 Hz, pose, transforms, paths and commands at 10 Hz.
     fn default() -> Self {
         Self {
             image_max_width_px: 640,
@@ -62,6 +63,8 @@ impl Default for ViewConfig {
                 Rate::new("/camera/*/calibration", 1.0),
                 Rate::new("/perception/**", 5.0),
                 Rate::new("/costmap/*", 1.0),
+                Rate::new("/nav/goal", 1.0),
+                Rate::new("/bins/*", 5.0),
                 Rate::new("/health/*", 2.0),
                 Rate::new("/**", 10.0),
             ],
@@ -186,6 +189,9 @@ pub struct View {
     throttle: Throttle,
     cameras: BTreeMap<String, CameraState>,
     newest_ns: u64,
+    /// The newest goal (x, y in map), sent again with the pose: a goal is
+    /// published once, and an app that connects later must still see it.
+    goal_m: Option<(f64, f64)>,
     dropped: BTreeMap<String, u64>,
 }
 
@@ -239,6 +245,7 @@ impl View {
             config,
             cameras: BTreeMap::new(),
             newest_ns: 0,
+            goal_m: None,
             dropped: BTreeMap::new(),
         })
     }
@@ -422,18 +429,11 @@ impl View {
                 }
             }
             (["nav", "goal"], Message::Goal(g)) => {
-                if g.x_m.is_finite() && g.y_m.is_finite() && self.admit("/nav/goal", t_ns) {
-                    let m = fm::PoseInFrame {
-                        timestamp: stamp(t_ns),
-                        frame_id: "map".into(),
-                        pose: Some(planar_pose(g.x_m, g.y_m, 0.0)),
-                    };
-                    emit(
-                        &mut out,
-                        "/nav/goal".into(),
-                        t_ns,
-                        FoxMessage::PoseInFrame(m),
-                    );
+                if g.x_m.is_finite() && g.y_m.is_finite() {
+                    self.goal_m = Some((g.x_m, g.y_m));
+                    out.extend(self.goal(t_ns));
+                } else {
+                    self.drop_message(topic, "the goal is not finite");
                 }
             }
             (["state", "pose"], Message::Pose(p)) => {
@@ -458,6 +458,7 @@ impl View {
                     if self.admit("/tf", t_ns) {
                         emit(&mut out, "/tf".into(), t_ns, self.transforms(p, t_ns));
                     }
+                    out.extend(self.goal(t_ns));
                 } else {
                     self.drop_message(topic, "a position or yaw is not finite");
                 }
@@ -627,6 +628,23 @@ impl View {
     }
 
     /// The visual path and subgoal drawn on the image as sent.
+    /// The newest goal as `/nav/goal`, if its throttle admits one at `t_ns`.
+    fn goal(&mut self, t_ns: u64) -> Option<Out> {
+        let (x_m, y_m) = self.goal_m?;
+        if !self.admit("/nav/goal", t_ns) {
+            return None;
+        }
+        Some(Out {
+            topic: "/nav/goal".into(),
+            log_time_ns: t_ns,
+            message: FoxMessage::PoseInFrame(fm::PoseInFrame {
+                timestamp: stamp(t_ns),
+                frame_id: "map".into(),
+                pose: Some(planar_pose(x_m, y_m, 0.0)),
+            }),
+        })
+    }
+
     fn annotations(&mut self, name: &str, t_ns: u64) -> Option<Out> {
         let (sx, sy) = self.sent_scale(name)?;
         let fox = format!("/camera/{name}/annotations");
@@ -645,6 +663,8 @@ impl View {
                 r#type: fm::points_annotation::Type::LineStrip as i32,
                 points: c.path_px.iter().copied().map(px).collect(),
                 outline_color: color(1.0, 0.6, 0.0, 1.0),
+                // A line strip is not filled; the schema still wants a colour.
+                fill_color: color(0.0, 0.0, 0.0, 0.0),
                 thickness: 3.0,
                 ..Default::default()
             });
@@ -801,19 +821,23 @@ pub fn angular_bins_scene(b: &AngularBins) -> FoxMessage {
                 a: 0.5,
             }
         };
-        let p = |a: f64, r: f64| fm::Point3 {
-            x: r * a.cos(),
-            y: r * a.sin(),
-            z: 0.05,
-        };
-        for (from, to) in [
-            (p(0.0, 0.0), p(a0, r)),
-            (p(a0, r), p(a1, r)),
-            (p(a1, r), p(0.0, 0.0)),
-        ] {
-            points.extend([from, to]);
-            colors.extend([c, c]);
-        }
+        // The polar histogram's outline, one strip: each bin's arc at its
+        // radius, joined by the radial steps between bins (two points a
+        // bin, a third of drawing each bin as a closed wedge).
+        points.extend([bin_point(a0, r), bin_point(a1, r)]);
+        colors.extend([c, c]);
+    }
+    let grey = fm::Color {
+        r: 0.5,
+        g: 0.5,
+        b: 0.5,
+        a: 0.5,
+    };
+    if !points.is_empty() {
+        points.insert(0, bin_point(0.0, 0.0));
+        colors.insert(0, grey);
+        points.push(bin_point(0.0, 0.0));
+        colors.push(grey);
     }
     FoxMessage::SceneUpdate(fm::SceneUpdate {
         deletions: vec![],
@@ -821,19 +845,31 @@ pub fn angular_bins_scene(b: &AngularBins) -> FoxMessage {
             timestamp: stamp(t_ns),
             frame_id: "base_link".into(),
             id: "angular_bins".into(),
+            // Shown until the next update replaces it.
+            lifetime: Some(fm::Duration::new(0, 0)),
             frame_locked: true,
             lines: vec![fm::LinePrimitive {
-                r#type: fm::line_primitive::Type::LineList as i32,
+                r#type: fm::line_primitive::Type::LineStrip as i32,
                 pose: Some(planar_pose(0.0, 0.0, 0.0)),
                 thickness: 0.04,
                 scale_invariant: false,
                 points,
+                color: Some(grey),
                 colors,
                 ..Default::default()
             }],
             ..Default::default()
         }],
     })
+}
+
+/// A point of the bins' drawing in base_link: bearing `a` rad, `r` m out.
+fn bin_point(a: f64, r: f64) -> fm::Point3 {
+    fm::Point3 {
+        x: r * a.cos(),
+        y: r * a.sin(),
+        z: 0.05,
+    }
 }
 
 fn time_json(ns: u64) -> serde_json::Value {
@@ -1022,6 +1058,40 @@ mod tests {
     }
 
     #[test]
+    fn a_goal_published_once_is_sent_again_with_the_pose_for_apps_that_connect_later() {
+        let mut view = View::new(ViewConfig::default()).unwrap();
+        let goal = NavGoal {
+            stamp: Stamp::new(1, 1_000_000_000),
+            x_m: 80.0,
+            y_m: 50.0,
+            ..Default::default()
+        };
+        let out = view.on_message("nav/goal", &Message::Goal(goal));
+        assert_eq!(out.len(), 1, "{out:?}");
+        let goals_with_pose = |view: &mut View, t_s: f64| {
+            let pose = Pose {
+                stamp: Stamp::new(1, (t_s * 1e9) as u64),
+                ..Default::default()
+            };
+            view.on_message("state/pose", &Message::Pose(pose))
+                .into_iter()
+                .filter(|o| o.topic == "/nav/goal")
+                .count()
+        };
+        // Pose at 10 Hz for 3 s: the goal again at its 1 Hz.
+        let again: usize = (11..=40)
+            .map(|i| goals_with_pose(&mut view, i as f64 / 10.0))
+            .sum();
+        assert_eq!(again, 3);
+        let nan = NavGoal {
+            x_m: f64::NAN,
+            ..goal
+        };
+        assert!(view.on_message("nav/goal", &Message::Goal(nan)).is_empty());
+        assert_eq!(view.dropped().get("nav/goal"), Some(&1));
+    }
+
+    #[test]
     fn costmap_rows_are_flipped_to_grow_north_and_lethal_cells_are_capped() {
         let h = CostmapHeader {
             width: 2,
@@ -1054,5 +1124,137 @@ mod tests {
             data: vec![cell(1.0)],
         };
         assert!(costmap_grid(&short).unwrap_err().contains("2x2"));
+    }
+
+    /// A tree the simulator's renderer drew, projected through what the
+    /// view publishes (`/tf`: map -> odom -> base_link -> the optical frame,
+    /// and `/camera/front/calibration` for the image as sent), lands within
+    /// 2 px of the tree's pixels in that image. A box's silhouette is
+    /// bounded by its corners: the leftmost and rightmost tree columns are
+    /// the corners' extreme azimuths, its lowest row the nearest corner on
+    /// the ground.
+    #[test]
+    fn a_tree_the_renderer_drew_projects_through_the_transforms_and_calibration_onto_it() {
+        use farsight_sim::render::{Frame, Renderer};
+        use farsight_sim::world::{class, Cover, Obstacle, World};
+        use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+        // A level pinhole camera, 1280 px sent at 640, offset on the robot
+        // and turned a little, so every transform in the chain matters.
+        let camera = Camera::new(
+            4,
+            "front",
+            CameraModel::pinhole(1280, 720, 700.0, 700.0, 640.0, 360.0),
+            Mount::from_xyz_rpy_deg([0.6, 0.3, 1.1], [0.0, 0.0, -8.0]),
+        );
+        let pose_xy_yaw = [13.0, 9.0, 0.4];
+        let mut world = World::new(60, 60, Cover::Grass);
+        let tree = (30_i64, 17_i64);
+        world.set_obstacle(tree.0, tree.1, Obstacle::Tree);
+        let mut frame = Frame::default();
+        Renderer::new(&camera, 100.0).render(&world, pose_xy_yaw, &mut frame);
+        // Where the renderer put the tree, in the image as sent (1280 -> 640:
+        // pixel 2i goes out as pixel i).
+        let (mut u_lo, mut u_hi, mut v_hi) = (usize::MAX, 0, 0);
+        for v in 0..frame.height {
+            for u in 0..frame.width {
+                if frame.class_ids[v * frame.width + u] == class::TREE {
+                    (u_lo, u_hi, v_hi) = (u_lo.min(u), u_hi.max(u), v_hi.max(v));
+                }
+            }
+        }
+        assert!(
+            u_hi > u_lo + 20,
+            "the tree is in view: columns {u_lo}..{u_hi}"
+        );
+        let drawn = [u_lo as f64 / 2.0, u_hi as f64 / 2.0, v_hi as f64 / 2.0];
+
+        let mut view = View::new(ViewConfig::default()).unwrap();
+        let t_ns = 5_000_000_000;
+        let rgb = Message::Image(Image {
+            header: ImageHeader::packed(
+                Stamp::new(1, t_ns),
+                camera.id,
+                1280,
+                720,
+                PixelEncoding::RGB8,
+            ),
+            data: frame.rgb.clone(),
+        });
+        view.on_message(
+            "camera/front/info",
+            &Message::CameraInfo(camera.to_info(Stamp::new(1, t_ns))),
+        );
+        view.on_message("camera/front/image", &rgb);
+        let calibration = view
+            .on_message(
+                "camera/front/info",
+                &Message::CameraInfo(camera.to_info(Stamp::new(1, t_ns))),
+            )
+            .into_iter()
+            .find_map(|o| match o.message {
+                FoxMessage::CameraCalibration(c) => Some(c),
+                _ => None,
+            })
+            .expect("calibration");
+        let pose = Pose {
+            stamp: Stamp::new(1, t_ns),
+            position_m: [pose_xy_yaw[0], pose_xy_yaw[1], 0.0],
+            yaw_rad: pose_xy_yaw[2],
+            ..Default::default()
+        };
+        let transforms = view
+            .on_message("state/pose", &Message::Pose(pose))
+            .into_iter()
+            .find_map(|o| match o.message {
+                FoxMessage::FrameTransforms(t) => Some(t.transforms),
+                _ => None,
+            })
+            .expect("transforms");
+        // A point in `child` from one in `parent`, by the published
+        // transform (the child frame's pose in its parent, as ROS's tf).
+        let into_child = |parent: &str, child: &str, p: Vector3<f64>| {
+            let t = transforms
+                .iter()
+                .find(|t| t.parent_frame_id == parent && t.child_frame_id == child)
+                .unwrap_or_else(|| panic!("no transform {parent} -> {child}"));
+            let (tr, r) = (t.translation.unwrap(), t.rotation.unwrap());
+            let q = UnitQuaternion::from_quaternion(Quaternion::new(r.w, r.x, r.y, r.z));
+            q.inverse() * (p - Vector3::new(tr.x, tr.y, tr.z))
+        };
+        let k = &calibration.k;
+        assert_eq!(calibration.frame_id, "camera_front_optical_frame");
+        assert_eq!((calibration.width, calibration.height), (640, 360));
+        let pixel = |x_m: f64, y_m: f64| {
+            let odom = into_child("map", "odom", Vector3::new(x_m, y_m, 0.0));
+            let base = into_child("odom", "base_link", odom);
+            let c = into_child("base_link", &calibration.frame_id, base);
+            assert!(c.z > 0.0, "z forward: the tree is in front");
+            [k[0] * c.x / c.z + k[2], k[4] * c.y / c.z + k[5]]
+        };
+        // The cell's ground corners (cells are centred on whole metres).
+        let corners: Vec<[f64; 2]> = [(-0.5, -0.5), (-0.5, 0.5), (0.5, -0.5), (0.5, 0.5)]
+            .iter()
+            .map(|(dx, dy)| pixel(tree.0 as f64 + dx, tree.1 as f64 + dy))
+            .collect();
+        let projected = [
+            corners.iter().map(|p| p[0]).fold(f64::INFINITY, f64::min),
+            corners
+                .iter()
+                .map(|p| p[0])
+                .fold(f64::NEG_INFINITY, f64::max),
+            corners
+                .iter()
+                .map(|p| p[1])
+                .fold(f64::NEG_INFINITY, f64::max),
+        ];
+        for (what, (d, p)) in ["left edge", "right edge", "foot"]
+            .iter()
+            .zip(drawn.iter().zip(projected))
+        {
+            assert!(
+                (d - p).abs() <= 2.0,
+                "{what}: drawn at {d} px, projects to {p:.2} px (all: drawn {drawn:?}, projected {projected:?})"
+            );
+        }
     }
 }

@@ -39,7 +39,9 @@ const DENY_TARGETS: [&str; 2] = ["x86_64-unknown-linux-gnu", "aarch64-unknown-li
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let result = match args.first().map(String::as_str) {
-        Some("setup") => setup().map(|p| println!("ONNX Runtime: {}", p.display())),
+        Some("setup") => setup()
+            .map(|p| println!("ONNX Runtime: {}", p.display()))
+            .and_then(|()| node_test_clients()),
         Some("test") => test(),
         Some("deny") => cargo_deny().and_then(|bin| deny(&bin)),
         Some("bench") => bench(&args[1..]),
@@ -399,6 +401,29 @@ fn run_test_binary(bin: &TestBinary, ort: &Path) -> Result<(u64, u64, u64)> {
     run_counting(&mut cmd)
 }
 
+/// The tests' independent Node.js clients (`tests/foxglove`: the official
+/// `@foxglove/ws-protocol` client and `@foxglove/schemas`), installed with
+/// `npm ci` from the pinned lock file, again only when the lock file changed.
+fn node_test_clients() -> Result<()> {
+    let dir = root().join("tests/foxglove");
+    let lock = dir.join("package-lock.json");
+    let stamp = dir.join("node_modules/.farsight-lock");
+    let want = std::fs::read_to_string(&lock).map_err(|e| format!("{}: {e}", lock.display()))?;
+    if std::fs::read_to_string(&stamp).ok().as_deref() == Some(want.as_str()) {
+        return Ok(());
+    }
+    run(Command::new("npm")
+        .args([
+            "ci",
+            "--no-audit",
+            "--no-fund",
+            "--loglevel=error",
+            "--prefix",
+        ])
+        .arg(&dir))?;
+    std::fs::write(&stamp, want).map_err(|e| format!("{}: {e}", stamp.display()))
+}
+
 fn test() -> Result<()> {
     let t0 = std::time::Instant::now();
     let mut phases = Phases::default();
@@ -414,6 +439,7 @@ fn test() -> Result<()> {
 
 fn test_phases(phases: &mut Phases) -> Result<(u64, u64, u64)> {
     let ort = phases.time("setup (ONNX Runtime)", setup)?;
+    phases.time("setup (Node.js test clients)", node_test_clients)?;
     phases.time("fmt", || run(cargo().args(["fmt", "--all", "--check"])))?;
     let deny_bin = phases.time("setup (cargo-deny)", cargo_deny)?;
     phases.time("cargo deny", || deny(&deny_bin))?;
