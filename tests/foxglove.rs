@@ -208,3 +208,84 @@ fn the_official_client_validates_every_live_channel_and_the_layout_finds_its_top
         "deploy/foxglove/farsight-layout.json names {missing:?}, never advertised (advertised: {advertised:?})"
     );
 }
+
+#[test]
+fn the_demo_recording_holds_the_live_channels_and_the_official_mcap_reader_validates_them() {
+    // The lock-step demo records every topic with `farsight record`, whose
+    // Foxglove channels are on by default; the @mcap/core reader
+    // (tests/foxglove/mcap.mjs) decodes and validates each one and checks
+    // every frame id against /tf.
+    let ns = Namespace::new("foxrec");
+    let out = ns.root.join("demo");
+    let mut demo = Proc::start(
+        "farsight",
+        &[
+            "demo",
+            "--method",
+            "povnav",
+            "--max-time-s",
+            "10",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &ns,
+    );
+    assert_eq!(
+        demo.wait_exit(Duration::from_secs(240)),
+        Some(0),
+        "{}",
+        demo.stderr_so_far()
+    );
+    let report = ns.root.join("mcap.json");
+    let run = Command::new("node")
+        .arg("foxglove/mcap.mjs")
+        .arg(out.join("recording.mcap"))
+        .arg("--report")
+        .arg(&report)
+        .output()
+        .expect("running node");
+    let table = String::from_utf8_lossy(&run.stdout);
+    eprintln!("the demo's recording, read by @mcap/core:\n{table}");
+    assert!(
+        run.status.success(),
+        "{}\n{table}\n{}",
+        run.status,
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    assert!(
+        report["farsight_messages"].as_u64().unwrap() > 100,
+        "the lossless copy stays"
+    );
+    let channels = report["channels"].as_object().unwrap();
+    for topic in [
+        "/camera/front/image",
+        "/camera/front/calibration",
+        "/perception/front/navigability",
+        "/nav/path/visual",
+        "/state/pose",
+        "/tf",
+        "/cmd/velocity",
+        "/health/velocity-servoing",
+    ] {
+        let n = channels
+            .get(topic)
+            .map_or(0, |c| c["messages"].as_u64().unwrap());
+        assert!(n > 0, "{topic}: {n} messages\n{table}");
+    }
+    // The same images the live server sends: JPEG, at most 640 px wide.
+    let image = &channels["/camera/front/image"]["last"];
+    assert_eq!(image["format"], "jpeg", "{image}");
+    assert_eq!(
+        channels["/camera/front/calibration"]["last"]["width"], 640,
+        "{}",
+        channels["/camera/front/calibration"]
+    );
+    let frames: Vec<&str> = report["frames_used"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f.as_str().unwrap())
+        .collect();
+    assert!(frames.contains(&"camera_front_optical_frame"), "{frames:?}");
+}

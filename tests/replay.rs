@@ -442,7 +442,6 @@ fn a_recorder_killed_mid_run_leaves_a_file_that_reads_to_its_last_message() {
             "record",
             "--topics",
             INPUTS,
-            "--foxglove",
             "--out",
             file.to_str().unwrap(),
         ],
@@ -463,8 +462,8 @@ fn a_recorder_killed_mid_run_leaves_a_file_that_reads_to_its_last_message() {
     let cut = Recording::open(&file).unwrap();
     let info = cut.info().unwrap();
     assert!(info.truncated.is_some(), "no summary was written: {info}");
-    // Foxglove's copies ride along: images and poses in its JSON schemas.
-    for t in ["/foxglove/camera/front/image", "/foxglove/state/pose"] {
+    // Foxglove's channels ride along by default: images, poses, transforms.
+    for t in ["/camera/front/image", "/state/pose", "/tf"] {
         assert!(info.topics.iter().any(|i| i.topic == t), "{t}: {info}");
     }
     let images = info
@@ -605,7 +604,6 @@ fn a_laptop_records_what_the_bridge_exports_over_zenoh() {
             "testbot",
             "--topics",
             "state/pose,camera/**",
-            "--foxglove",
             "--out",
             file.to_str().unwrap(),
         ],
@@ -654,7 +652,7 @@ fn a_laptop_records_what_the_bridge_exports_over_zenoh() {
     // every one with its stamp; the images as the bridge sent them.
     assert!(count("state/pose") > 40, "{info}");
     assert!(count("camera/front/image") > 20, "{info}");
-    assert!(count("/foxglove/camera/front/image") > 20, "{info}");
+    assert!(count("/camera/front/image") > 20, "{info}");
     let (messages, _) = Recording::open(&file).unwrap().messages().unwrap();
     let images: Vec<_> = messages
         .iter()

@@ -16,10 +16,7 @@
 // CommonJS packages: their exports object is the default import.
 import wsProtocol from "@foxglove/ws-protocol";
 import { WebSocket } from "ws";
-import protobuf from "protobufjs";
-import descriptor from "protobufjs/ext/descriptor/index.js";
-import Ajv from "ajv";
-import schemas from "@foxglove/schemas/jsonschema.js";
+import { channelReport, decoderFor, validatorFor, shorten } from "./validate.mjs";
 import { writeFileSync } from "node:fs";
 
 const { FoxgloveClient } = wsProtocol;
@@ -34,61 +31,6 @@ const untilMessages = Number(opt("--until-messages", "5"));
 const timeoutS = Number(opt("--timeout-s", "60"));
 const required = (opt("--require", "") || "").split(",").filter((t) => t);
 const reportPath = opt("--report", null);
-
-const ajv = new Ajv({ allErrors: true, strict: false });
-const validators = new Map();
-function validatorFor(channel) {
-  const key = `${channel.schemaEncoding}:${channel.schemaName}:${channel.schema}`;
-  if (!validators.has(key)) {
-    let schema;
-    if (channel.encoding === "json") {
-      schema = JSON.parse(channel.schema);
-    } else {
-      const short = channel.schemaName.replace(/^foxglove\./, "");
-      schema = schemas[short];
-      if (!schema) throw new Error(`no official schema for ${channel.schemaName}`);
-    }
-    validators.set(key, ajv.compile(schema));
-  }
-  return validators.get(key);
-}
-
-// protobuf -> the JSON shape Foxglove's schemas describe: time as
-// {sec, nsec} (protobuf's google.protobuf.Timestamp is {seconds, nanos}).
-function toFoxgloveJson(v) {
-  if (Array.isArray(v)) return v.map(toFoxgloveJson);
-  if (v && typeof v === "object") {
-    const keys = Object.keys(v);
-    if (keys.length === 2 && "seconds" in v && "nanos" in v) {
-      return { sec: v.seconds, nsec: v.nanos };
-    }
-    return Object.fromEntries(keys.map((k) => [k, toFoxgloveJson(v[k])]));
-  }
-  return v;
-}
-
-function decoderFor(channel) {
-  if (channel.encoding === "json") {
-    const text = new TextDecoder();
-    return (bytes) => JSON.parse(text.decode(bytes));
-  }
-  if (channel.encoding !== "protobuf" || channel.schemaEncoding !== "protobuf") {
-    throw new Error(`${channel.topic}: unexpected encoding ${channel.encoding}/${channel.schemaEncoding}`);
-  }
-  const set = descriptor.FileDescriptorSet.decode(Buffer.from(channel.schema, "base64"));
-  const type = protobuf.Root.fromDescriptor(set).lookupType(channel.schemaName);
-  return (bytes) =>
-    toFoxgloveJson(
-      type.toObject(type.decode(bytes), { longs: Number, enums: Number, bytes: String, defaults: true }),
-    );
-}
-
-function shorten(v) {
-  if (Array.isArray(v)) return v.length > 64 ? `[${v.length} items]` : v.map(shorten);
-  if (typeof v === "string" && v.length > 256) return `<${v.length} chars>`;
-  if (v && typeof v === "object") return Object.fromEntries(Object.entries(v).map(([k, x]) => [k, shorten(x)]));
-  return v;
-}
 
 const channels = new Map(); // id -> state
 const bySub = new Map();
@@ -120,8 +62,12 @@ client.on("advertise", (list) => {
       last: null,
     };
     try {
-      state.decode = decoderFor(ch);
-      state.validate = validatorFor(ch);
+      // ws-protocol sends a protobuf schema base64-encoded, JSON as text.
+      const schema =
+        ch.schemaEncoding === "protobuf" ? Buffer.from(ch.schema, "base64") : new TextEncoder().encode(ch.schema);
+      const channel = { ...ch, schema };
+      state.decode = decoderFor(channel);
+      state.validate = validatorFor(channel);
     } catch (e) {
       state.firstError = `advertise: ${e.message}`;
     }
@@ -143,10 +89,11 @@ client.on("message", ({ subscriptionId, timestamp, data }) => {
   if (!s.decode) return;
   try {
     const msg = s.decode(bytes);
-    if (s.validate(msg)) {
+    const error = s.validate(msg);
+    if (error === null) {
       s.valid += 1;
     } else {
-      s.firstError ??= ajv.errorsText(s.validate.errors);
+      s.firstError ??= error;
     }
     s.last = shorten(msg);
   } catch (e) {
@@ -174,17 +121,7 @@ function finish(code) {
       `${s.topic.padEnd(34)} ${s.schemaName.padEnd(26)} ${String(s.messages).padStart(6)} ${String(s.valid).padStart(6)} ${hz.toFixed(1).padStart(6)} ${(s.bytes / 1000 / Math.max(elapsedS, 1e-3)).toFixed(1).padStart(8)}`,
     );
     if (s.firstError) console.log(`  first error: ${s.firstError}`);
-    report.channels[s.topic] = {
-      schema: s.schemaName,
-      encoding: s.encoding,
-      messages: s.messages,
-      valid: s.valid,
-      bytes: s.bytes,
-      capture_hz: hz,
-      receive_span_s: recvS,
-      first_error: s.firstError,
-      last: s.last,
-    };
+    report.channels[s.topic] = channelReport(s, { capture_hz: hz, receive_span_s: recvS });
   }
   report.bytes = totalBytes;
   report.bytes_per_s = totalBytes / Math.max(elapsedS, 1e-3);

@@ -38,9 +38,11 @@ pub struct RecordArgs {
     /// Stop after this many seconds (default: at Ctrl-C / SIGTERM).
     #[arg(long)]
     pub duration_s: Option<f64>,
-    /// Also write Foxglove-viewable channels (poses, paths, costmaps, images).
+    /// Leave out the Foxglove channels (those of the live server: JPEG
+    /// images, /tf, calibration, grids, paths, commands, health), which are
+    /// written by default so the file opens in the Foxglove app.
     #[arg(long)]
-    pub foxglove: bool,
+    pub no_foxglove: bool,
     /// Store messages as they are instead of zstd-compressed (less CPU,
     /// much more disk).
     #[arg(long)]
@@ -81,7 +83,7 @@ pub fn run_record(a: RecordArgs) -> Result<()> {
     if a.ack.is_some() && !a.connect.is_empty() {
         bail!("--ack answers a lock-step simulator on this machine's shared memory; it does not go with --connect");
     }
-    let writer = RecordingWriter::create_with(&a.out, a.foxglove, !a.no_compression)?;
+    let writer = RecordingWriter::create_with(&a.out, !a.no_foxglove, !a.no_compression)?;
     let opts = RecordOptions {
         patterns: if a.topics.is_empty() {
             vec!["**".into()]

@@ -8,9 +8,11 @@
 //! [wire](farsight_interfaces::transport::wire) bytes (message encoding
 //! `farsight-wire`, schema `farsight.<Kind>`); the log time is when the
 //! recorder received the message and the publish time the capture time of
-//! the frame it came from. With `foxglove` on, poses, paths, costmaps and
-//! images also get `/foxglove/<topic>` channels in Foxglove's JSON schemas,
-//! so the file opens in the Foxglove app as it is.
+//! the frame it came from. With `foxglove` on (the default of `farsight
+//! record` and the recorder node), the file also holds the live Foxglove
+//! server's channels (`/camera/front/image`, `/tf`, `/costmap/fused`, ...:
+//! official protobuf schemas, JPEG images, transforms and calibration, all
+//! on capture time), so it opens in the Foxglove app with the shipped layout.
 //!
 //! ```no_run
 //! use farsight_recording::{read::Recording, write::RecordingWriter};
@@ -35,7 +37,6 @@
 //! where it was cut.
 
 pub mod diff;
-pub mod foxglove;
 pub mod mcap_file;
 pub mod node;
 pub use farsight_interfaces::pattern;

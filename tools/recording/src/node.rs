@@ -17,7 +17,7 @@
 //! topics = ["camera/front/image", "state/pose", "cmd/velocity"]
 //! queue_depth = 16                # messages of each topic it may fall behind
 //! compression = true              # zstd chunks
-//! foxglove = false                # also Foxglove-viewable channels
+//! foxglove = true                 # the live Foxglove server's channels too
 //! # ack = "cmd/velocity"          # lock-step: report each answer written
 //! ```
 
@@ -45,7 +45,8 @@ pub struct RecorderConfig {
     pub queue_depth: usize,
     /// zstd-compressed chunks (less disk, more CPU).
     pub compression: bool,
-    /// Also write Foxglove-viewable channels.
+    /// Also write the live Foxglove server's channels (JPEG images, /tf,
+    /// calibration, grids, paths), so the file opens in the Foxglove app.
     pub foxglove: bool,
     /// Lock-step: the topic whose every message written is reported on
     /// `health/<instance>` (the graph's answer to a frame).
@@ -59,7 +60,7 @@ impl Default for RecorderConfig {
             topics: Vec::new(),
             queue_depth: 16,
             compression: true,
-            foxglove: false,
+            foxglove: true,
             ack: None,
         }
     }
