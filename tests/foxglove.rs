@@ -25,7 +25,6 @@ const MESSAGES: u64 = 3;
 /// client against it until each of `require` has [`MESSAGES`] messages;
 /// returns the client's report (see `tests/foxglove/client.mjs`).
 fn live_demo(ns: &Namespace, method: &str, require: &[&str]) -> Value {
-    let client = Path::new("foxglove/client.mjs");
     assert!(
         Path::new("foxglove/node_modules/@foxglove/ws-protocol").exists(),
         "the Node.js test client is not installed: run `cargo xtask setup` (npm ci in tests/foxglove)"
@@ -58,27 +57,57 @@ fn live_demo(ns: &Namespace, method: &str, require: &[&str]) -> Value {
         "{}",
         url.1
     );
-    let report = ns.root.join(format!("{method}-client.json"));
+    let url = format!("ws://127.0.0.1:{port}");
+    let (messages, timeout) = (MESSAGES.to_string(), "300");
+    let report = node_script(
+        ns,
+        &format!("{method}: the Foxglove client"),
+        "client.mjs",
+        &[
+            &url,
+            "--until-messages",
+            &messages,
+            "--require",
+            &require.join(","),
+            "--timeout-s",
+            timeout,
+        ],
+    )
+    .unwrap_or_else(|why| {
+        panic!(
+            "{method}: the client did not get {MESSAGES} messages of each of {require:?}: {why}\ndemo:\n{}",
+            demo.stderr_so_far()
+        )
+    });
+    demo.kill();
+    report
+}
+
+/// Runs `node tests/foxglove/SCRIPT ARGS --report FILE` and prints its
+/// table under `what`; its report, or why it failed (exit status, output).
+fn node_script(ns: &Namespace, what: &str, script: &str, args: &[&str]) -> Result<Value, String> {
+    let report = ns.root.join(format!("{}.json", script.replace('.', "-")));
+    let _ = std::fs::remove_file(&report);
     let run = Command::new("node")
-        .arg(client)
-        .arg(format!("ws://127.0.0.1:{port}"))
-        .args(["--until-messages", &MESSAGES.to_string()])
-        .args(["--require", &require.join(",")])
-        .args(["--timeout-s", "300", "--report"])
+        .arg(Path::new("foxglove").join(script))
+        .args(args)
+        .arg("--report")
         .arg(&report)
         .output()
-        .expect("running node (Node.js is on every machine of this project)");
+        .map_err(|e| format!("running node (Node.js is on every machine of this project): {e}"))?;
     let table = String::from_utf8_lossy(&run.stdout);
-    eprintln!("{method}: the Foxglove client's table\n{table}");
-    assert!(
-        run.status.success(),
-        "{method}: the client did not get {MESSAGES} messages of each of {require:?} ({}):\n{table}\n{}\ndemo:\n{}",
-        run.status,
-        String::from_utf8_lossy(&run.stderr),
-        demo.stderr_so_far()
-    );
-    demo.kill();
-    serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap()
+    eprintln!("{what}:\n{table}");
+    if !run.status.success() {
+        return Err(format!(
+            "{} ({}):\n{table}\n{}",
+            script,
+            run.status,
+            String::from_utf8_lossy(&run.stderr)
+        ));
+    }
+    let text =
+        std::fs::read_to_string(&report).map_err(|e| format!("{}: {e}", report.display()))?;
+    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", report.display()))
 }
 
 /// Every channel's messages decoded and schema-valid, and the server
@@ -236,23 +265,14 @@ fn the_demo_recording_holds_the_live_channels_and_the_official_mcap_reader_valid
         "{}",
         demo.stderr_so_far()
     );
-    let report = ns.root.join("mcap.json");
-    let run = Command::new("node")
-        .arg("foxglove/mcap.mjs")
-        .arg(out.join("recording.mcap"))
-        .arg("--report")
-        .arg(&report)
-        .output()
-        .expect("running node");
-    let table = String::from_utf8_lossy(&run.stdout);
-    eprintln!("the demo's recording, read by @mcap/core:\n{table}");
-    assert!(
-        run.status.success(),
-        "{}\n{table}\n{}",
-        run.status,
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let report: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    let recording = out.join("recording.mcap");
+    let report = node_script(
+        &ns,
+        "the demo's recording, read by @mcap/core",
+        "mcap.mjs",
+        &[recording.to_str().unwrap()],
+    )
+    .unwrap_or_else(|why| panic!("{why}"));
     assert!(
         report["farsight_messages"].as_u64().unwrap() > 100,
         "the lossless copy stays"
@@ -271,7 +291,7 @@ fn the_demo_recording_holds_the_live_channels_and_the_official_mcap_reader_valid
         let n = channels
             .get(topic)
             .map_or(0, |c| c["messages"].as_u64().unwrap());
-        assert!(n > 0, "{topic}: {n} messages\n{table}");
+        assert!(n > 0, "{topic}: {n} messages (the table above)");
     }
     // The same images the live server sends: JPEG, at most 640 px wide.
     let image = &channels["/camera/front/image"]["last"];

@@ -627,7 +627,6 @@ impl View {
         }))
     }
 
-    /// The visual path and subgoal drawn on the image as sent.
     /// The newest goal as `/nav/goal`, if its throttle admits one at `t_ns`.
     fn goal(&mut self, t_ns: u64) -> Option<Out> {
         let (x_m, y_m) = self.goal_m?;
@@ -645,6 +644,7 @@ impl View {
         })
     }
 
+    /// The visual path and subgoal drawn on the image as sent.
     fn annotations(&mut self, name: &str, t_ns: u64) -> Option<Out> {
         let (sx, sy) = self.sent_scale(name)?;
         let fox = format!("/camera/{name}/annotations");
