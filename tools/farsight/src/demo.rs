@@ -9,7 +9,10 @@
 //! and, through the graph's bridge and zenoh, the laptop: it saves every
 //! frame and navigability image it receives as PNG and reports the commands.
 //! `--frames`, `--rate-hz` and `--loops` other than the graph's run a copy of
-//! the graph with those values, written to the output folder.
+//! the graph with those values, written to the output folder; `--loops 0`
+//! plays until Ctrl-C (or SIGTERM), then writes the summary as a finished
+//! run does. `--foxglove-port` serves the run to the Foxglove app the way a
+//! laptop does: `farsight foxglove --connect` on the graph's bridge.
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
@@ -65,14 +68,15 @@ pub struct DemoArgs {
     /// ../shared/data/orfd/image_data from the repository root].
     #[arg(long)]
     frames: Option<PathBuf>,
-    /// Passes over the folder [default: graphs/orfd.toml's].
+    /// Passes over the folder, 0: until Ctrl-C [default: graphs/orfd.toml's].
     #[arg(long)]
     loops: Option<u32>,
     /// Frames per second [default: graphs/orfd.toml's].
     #[arg(long)]
     rate_hz: Option<f64>,
     /// Serve the run live to the Foxglove app (`farsight foxglove`) on
-    /// ws://127.0.0.1:PORT (simulation demos).
+    /// ws://127.0.0.1:PORT: in simulation from shared memory; with --orfd
+    /// from the graph's bridge over zenoh, as a laptop watches a robot.
     #[arg(long, value_name = "PORT")]
     foxglove_port: Option<u16>,
 }
@@ -191,14 +195,39 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let mut subgoals = net.subscriber(&topics::subgoal())?;
     // Every node of the graph, each one's config and log in `out`.
     let stages = crate::run::start_graph(&orfd.path, &out, &prefix, "", Duration::from_secs(120))?;
+    // The laptop's Foxglove server, once the bridge listens: a zenoh
+    // client gives up at once on an endpoint nobody listens on.
+    let foxglove = a
+        .foxglove_port
+        .map(|port| {
+            crate::demo_sim::start_foxglove(
+                &out,
+                &prefix,
+                port,
+                Some((&orfd.endpoint, &orfd.robot)),
+            )
+        })
+        .transpose()?;
     std::fs::create_dir_all(out.join("navigability"))?;
     let started = Instant::now();
     let (mut tracking, mut v_sum, mut w_abs_max, mut last_subgoal) = (0u64, 0.0f64, 0.0f64, None);
 
-    let expected = orfd.loops as u64 * std::fs::read_dir(&frames)?.count() as u64;
+    // None: `--loops 0`, until Ctrl-C.
+    let expected = (orfd.loops > 0)
+        .then(|| -> Result<u64> {
+            Ok(orfd.loops as u64 * std::fs::read_dir(&frames)?.count() as u64)
+        })
+        .transpose()?;
     let (mut received, mut bytes, mut last_health, mut camera) = (0u64, 0usize, None, None);
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while received < expected && Instant::now() < deadline {
+    // A stall, not a length: the run ends when no frame came for this long.
+    const STALL: Duration = Duration::from_secs(60);
+    let mut last_frame = Instant::now();
+    let mut stopped = false;
+    while expected.is_none_or(|n| received < n) && last_frame.elapsed() < STALL {
+        if robot.termination_requested() {
+            stopped = true;
+            break;
+        }
         // Stamped now, as a localisation stack would: the stages judge
         // the pose's age on its capture time.
         pose_pub.publish(&Pose {
@@ -242,14 +271,16 @@ pub fn run(a: DemoArgs) -> Result<()> {
             bail!("expected PNG frames from the bridge, got {}", h.encoding);
         }
         received += 1;
+        last_frame = Instant::now();
         bytes += data.len();
         let name = out
             .join("frames")
             .join(format!("{:04}.png", h.stamp.frame_seq));
         std::fs::write(&name, &data)?;
         print!(
-            "\r  frame {:>3}/{expected}  {}x{} png {:>4} kB  capture {} ms",
+            "\r  frame {:>3}/{}  {}x{} png {:>4} kB  capture {} ms",
             h.stamp.frame_seq,
+            expected.map_or("-".to_string(), |n| n.to_string()),
             h.width,
             h.height,
             data.len() / 1024,
@@ -259,6 +290,9 @@ pub fn run(a: DemoArgs) -> Result<()> {
     }
     println!();
     let elapsed = started.elapsed().as_secs_f64();
+    // Its closing report (per Foxglove topic: messages, MB) on stdout,
+    // under the progress line.
+    drop(foxglove);
     // camera-ingest ends when it has played its loops: its last health
     // report (stopping) carries the final counts.
     let end = Instant::now() + Duration::from_secs(2);
@@ -275,13 +309,19 @@ pub fn run(a: DemoArgs) -> Result<()> {
     drop(stages);
 
     let mut summary = String::new();
+    let of = match expected {
+        Some(n) => format!("{n}"),
+        None => "endless (--loops 0)".into(),
+    };
     summary += &format!(
-        "received {received} of {expected} frames over zenoh in {elapsed:.1} s ({:.1} frames/s)\n",
-        received as f64 / elapsed
+        "received {received} of {of} frames over zenoh in {elapsed:.1} s ({:.1} frames/s){}\n",
+        received as f64 / elapsed,
+        if stopped { ", stopped by a signal" } else { "" }
     );
     summary += &format!(
-        "mean PNG size {} kB (frames downsampled 2x by the bridge)\n",
-        bytes / received.max(1) as usize / 1024
+        "mean PNG size {} kB (frames downsampled 2x by the bridge), {:.1} kB/s of camera frames over zenoh\n",
+        bytes / received.max(1) as usize / 1024,
+        bytes as f64 / elapsed / 1e3
     );
     if let Some(c) = camera {
         summary += &format!(
@@ -350,6 +390,8 @@ struct OrfdGraph {
     loops: u32,
     /// Where the graph's bridge listens (the laptop side connects there).
     endpoint: String,
+    /// The bridge's robot name (the `<robot>` of its zenoh keys).
+    robot: String,
     /// The queues the graph declares (its recorder's): this process
     /// publishes the pose and goal, so it feeds them too.
     queues: String,
@@ -443,6 +485,7 @@ impl OrfdGraph {
                 frames,
                 loops,
                 endpoint,
+                robot: bridge.robot.clone(),
                 queues: graph.queues("robot"),
             });
         }
@@ -502,6 +545,7 @@ impl OrfdGraph {
             frames,
             loops,
             endpoint,
+            robot: bridge.robot.clone(),
             queues: graph.queues("robot"),
         })
     }

@@ -92,10 +92,20 @@ fn start_recorder(out: &Path, prefix: &str, queues: &str, topics: &[String]) -> 
     start_reporting(cmd, "recorder", "farsight-record ready", out, prefix)
 }
 
-/// `farsight foxglove` on `port`: the run live in the Foxglove app.
-fn start_foxglove(out: &Path, prefix: &str, port: u16) -> Result<Reporting> {
+/// `farsight foxglove` on `port`: the run live in the Foxglove app. It
+/// reads this machine's shared memory, or with `laptop` (the bridge's zenoh
+/// endpoint and robot name) the robot's bridge over zenoh, as a laptop does.
+pub(crate) fn start_foxglove(
+    out: &Path,
+    prefix: &str,
+    port: u16,
+    laptop: Option<(&str, &str)>,
+) -> Result<Reporting> {
     let mut cmd = Command::new(std::env::current_exe()?);
     cmd.args(["foxglove", "--port", &port.to_string()]);
+    if let Some((endpoint, robot)) = laptop {
+        cmd.args(["--connect", endpoint, "--robot", robot]);
+    }
     let child = start_reporting(cmd, "foxglove", "farsight-foxglove ready", out, prefix)?;
     println!("foxglove: ws://127.0.0.1:{port} (open it in the Foxglove app; layout: deploy/foxglove/farsight-layout.json)");
     Ok(child)
@@ -142,7 +152,7 @@ fn start_reporting(
 }
 
 /// A child tool's process and the thread that passes its report on.
-struct Reporting {
+pub(crate) struct Reporting {
     child: Option<Stage>,
     reader: Option<std::thread::JoinHandle<()>>,
 }
@@ -282,7 +292,7 @@ pub fn run(d: SimDemo) -> Result<()> {
     let recorder = start_recorder(&out, &prefix, &queues, &recorded)?;
     let foxglove = d
         .foxglove_port
-        .map(|port| start_foxglove(&out, &prefix, port))
+        .map(|port| start_foxglove(&out, &prefix, port, None))
         .transpose()?;
     let mut cmd = Command::new(sim);
     crate::demo::die_with_parent(&mut cmd)

@@ -2,6 +2,8 @@
 //!
 //! - `setup`: fetch ONNX Runtime from the `onnxruntime` PyPI wheel into the
 //!   cache (`$FARSIGHT_CACHE`, default `~/.cache/farsight`) and print its path;
+//!   install the tests' pinned Foxglove clients (`npm ci` in `tests/foxglove`,
+//!   and the Python reader's virtual environment `tests/foxglove/.venv`);
 //! - `test`: every check CI runs: fmt, `cargo deny` (bans, licences, sources;
 //!   cargo-deny is built once into the cache), clippy, build, each test binary
 //!   on its own, then the time of each phase and one summary line;
@@ -47,6 +49,9 @@ fn main() -> ExitCode {
                 if let Err(e) = node_test_clients() {
                     eprintln!("xtask: the Node.js test clients are not installed ({e}); `cargo xtask test` needs them");
                 }
+                if let Err(e) = python_test_clients() {
+                    eprintln!("xtask: the Python test reader is not installed ({e}); `cargo xtask test` needs it");
+                }
             }),
         Some("test") => test(),
         Some("deny") => cargo_deny().and_then(|bin| deny(&bin)),
@@ -56,7 +61,7 @@ fn main() -> ExitCode {
         Some("train") => train(&args[1..]),
         _ => {
             eprintln!(
-                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache\n  test              fmt, cargo deny, clippy, build and every test\n  deny              cargo deny check bans licenses sources (offline)\n  bench NAME        transport | navigation | planning | nav | inference | recorder (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames\n  fixtures [sim|orfd|heldout]  regenerate tests/fixtures (replay fixtures and goldens; held-out frames)\n  train [--smoke] [--ship]  simulate, record, label, train, export, evaluate (LRN + FITAM models)"
+                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache; install the tests' pinned Foxglove clients (npm, Python venv)\n  test              fmt, cargo deny, clippy, build and every test\n  deny              cargo deny check bans licenses sources (offline)\n  bench NAME        transport | navigation | planning | nav | inference | recorder (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames\n  fixtures [sim|orfd|heldout]  regenerate tests/fixtures (replay fixtures and goldens; held-out frames)\n  train [--smoke] [--ship]  simulate, record, label, train, export, evaluate (LRN + FITAM models)"
             );
             return ExitCode::from(2);
         }
@@ -433,6 +438,45 @@ fn node_test_clients() -> Result<()> {
     std::fs::write(&stamp, want).map_err(|e| format!("{}: {e}", stamp.display()))
 }
 
+/// The tests' independent Python reader of recordings
+/// (`tests/foxglove/mcap_check.py`: the official `mcap` package,
+/// `mcap-protobuf-support` and `jsonschema`), installed into its own virtual
+/// environment `tests/foxglove/.venv` (git-ignored; nothing system-wide)
+/// from the pinned `tests/foxglove/requirements.txt`, again only when that
+/// file changed.
+fn python_test_clients() -> Result<()> {
+    let dir = root().join("tests/foxglove");
+    let req = dir.join("requirements.txt");
+    let venv = dir.join(".venv");
+    let py = venv.join("bin/python");
+    let stamp = venv.join("farsight-requirements.txt");
+    let want = std::fs::read_to_string(&req).map_err(|e| format!("{}: {e}", req.display()))?;
+    if py.exists() && std::fs::read_to_string(&stamp).ok().as_deref() == Some(want.as_str()) {
+        return Ok(());
+    }
+    // Anew, so a package dropped from the file is gone too. pip's report
+    // goes to stderr (see node_test_clients).
+    let _ = std::fs::remove_dir_all(&venv);
+    run(Command::new("python3")
+        .args(["-m", "venv"])
+        .arg(&venv)
+        .stdout(std::io::stderr()))?;
+    run(Command::new(&py)
+        .args([
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--disable-pip-version-check",
+            "--no-input",
+            "-r",
+        ])
+        .arg(&req)
+        .stdout(std::io::stderr()))?;
+    // Written last: an interrupted install is made again next time.
+    std::fs::write(&stamp, want).map_err(|e| format!("{}: {e}", stamp.display()))
+}
+
 fn test() -> Result<()> {
     let t0 = std::time::Instant::now();
     let mut phases = Phases::default();
@@ -449,6 +493,7 @@ fn test() -> Result<()> {
 fn test_phases(phases: &mut Phases) -> Result<(u64, u64, u64)> {
     let ort = phases.time("setup (ONNX Runtime)", setup)?;
     phases.time("setup (Node.js test clients)", node_test_clients)?;
+    phases.time("setup (Python test reader)", python_test_clients)?;
     phases.time("fmt", || run(cargo().args(["fmt", "--all", "--check"])))?;
     let deny_bin = phases.time("setup (cargo-deny)", cargo_deny)?;
     phases.time("cargo deny", || deny(&deny_bin))?;
