@@ -48,18 +48,7 @@ fn robot(ns: &Namespace, hosts: &TwoHosts, port: u16, speed: &str) -> Vec<Proc> 
         ],
         &["cmd/velocity"],
     )];
-    let users = ns.write(
-        "users.txt",
-        &std::fs::read_to_string(repo_root().join("deploy/zenoh/users.txt")).unwrap(),
-    );
-    let router = std::fs::read_to_string(repo_root().join("deploy/zenoh/robot.json5"))
-        .unwrap()
-        .replace(
-            "tcp/0.0.0.0:7447",
-            &format!("tcp/{}:{port}", hosts.robot_ip),
-        )
-        .replace("/etc/farsight/zenoh/users.txt", users.to_str().unwrap());
-    let router = ns.write("robot.json5", &router);
+    let router = ns.shipped_router(&format!("tcp/{}:{port}", hosts.robot_ip));
     let mut bridge = format!(
         "robot = \"robot\"\n[zenoh]\nconfig_file = {}\n\
          [[export]]\ntopic = \"camera/front/image\"\ndownsample = 2\ncompression = \"jpeg\"\n\

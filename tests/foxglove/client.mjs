@@ -13,20 +13,13 @@
 // messages, schema-valid, first error, bytes, capture-time rate, and the
 // newest decoded message (large byte fields shortened).
 
-// CommonJS packages: their exports object is the default import.
-import wsProtocol from "@foxglove/ws-protocol";
-import { WebSocket } from "ws";
+import { connect, option } from "./connect.mjs";
 import { channelReport, decoderFor, validatorFor, shorten } from "./validate.mjs";
 import { writeFileSync } from "node:fs";
 
-const { FoxgloveClient } = wsProtocol;
-
 const args = process.argv.slice(2);
 const url = args[0];
-const opt = (name, dflt) => {
-  const i = args.indexOf(name);
-  return i >= 0 ? args[i + 1] : dflt;
-};
+const opt = (name, dflt) => option(args, name, dflt);
 const untilMessages = Number(opt("--until-messages", "5"));
 const timeoutS = Number(opt("--timeout-s", "60"));
 const required = (opt("--require", "") || "").split(",").filter((t) => t);
@@ -34,12 +27,7 @@ const reportPath = opt("--report", null);
 
 const channels = new Map(); // id -> state
 const bySub = new Map();
-// The foxglove SDK's server names the ws-protocol v1 spec
-// "foxglove.sdk.v1" (inline schemas; not "foxglove.sdk.v1.1", whose schema
-// tables this client does not read); the npm client speaks that spec and
-// names it "foxglove.websocket.v1".
-const ws = new WebSocket(url, ["foxglove.sdk.v1", FoxgloveClient.SUPPORTED_SUBPROTOCOL]);
-const client = new FoxgloveClient({ ws });
+const client = connect(url);
 const started = Date.now();
 let serverInfo = null;
 

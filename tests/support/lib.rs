@@ -109,6 +109,22 @@ impl Namespace {
         p.stderr_to_end()
     }
 
+    /// The shipped robot router config (`deploy/zenoh/robot.json5`: laptops
+    /// read, only the operator commands) listening on `listen` (e.g.
+    /// `tcp/127.0.0.1:7447`) with the shipped users file, both written
+    /// here; its path, for a bridge config's `zenoh.config_file`.
+    pub fn shipped_router(&self, listen: &str) -> PathBuf {
+        let users = self.write(
+            "users.txt",
+            &std::fs::read_to_string(repo_root().join("deploy/zenoh/users.txt")).unwrap(),
+        );
+        let router = std::fs::read_to_string(repo_root().join("deploy/zenoh/robot.json5"))
+            .unwrap()
+            .replace("tcp/0.0.0.0:7447", listen)
+            .replace("/etc/farsight/zenoh/users.txt", users.to_str().unwrap());
+        self.write("robot.json5", &router)
+    }
+
     /// `farsight-bridge` from `config`, once it printed `bridge ready`.
     pub fn start_bridge(&self, config: &std::path::Path) -> Proc {
         self.start_bridge_in(None, config)

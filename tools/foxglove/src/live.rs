@@ -1,22 +1,32 @@
 //! The live Foxglove WebSocket server, fed from the vehicle's shared memory
 //! or from a robot's bridge over zenoh.
 //!
+//! On the robot it is read-only: no client-publish capability. On the
+//! laptop it also takes the operator's goals, e-stop and teleop from the
+//! app ([`crate::operator`]) and puts them on the robot's zenoh keys, which
+//! the robot's bridge hands to the planner and the command mux.
+//!
 //! A channel is advertised when its first message is made, so the app
 //! lists what the graph actually publishes. Both feeds take the newest
 //! message of each topic: a viewer that falls behind skips frames rather
 //! than showing old ones late.
 
+use crate::operator::{self, OperatorCommand, OperatorConfig, Refusal};
 use crate::view::{Out, View};
+use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::message::Message;
-use farsight_interfaces::topics::kind_of;
+use farsight_interfaces::msg::{EStop, NavGoal, Stamp, VelocityCommand};
+use farsight_interfaces::topics::{self, kind_of};
 use farsight_interfaces::transport::any::AnySubscriber;
 use farsight_interfaces::transport::ipc::{self, Bus, LoopExit};
-use farsight_interfaces::transport::net::NetBus;
+use farsight_interfaces::transport::net::{NetBus, Publisher};
 use farsight_interfaces::transport::TransportError;
+use foxglove::websocket::{Capability, Client, ClientChannel, ServerListener, Status};
 use foxglove::{Context, PartialMetadata, RawChannel, WebSocketServer, WebSocketServerHandle};
 use std::collections::{BTreeMap, HashMap};
 use std::ops::ControlFlow;
-use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{mpsc, Arc, Mutex};
 use std::time::{Duration, Instant};
 
 #[derive(Debug, thiserror::Error)]
@@ -43,23 +53,140 @@ pub struct ChannelStats {
     pub bytes: u64,
 }
 
+/// The operator's messages from the app: taken or refused, per topic.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct OperatorStats {
+    pub accepted: u64,
+    pub refused: u64,
+}
+
+/// Who the laptop's server commands as, and within which limits.
+#[derive(Debug, Clone)]
+pub struct OperatorInput {
+    /// `Ok` when the zenoh login may command ([`operator::may_command`]);
+    /// otherwise every message from the app is refused with this reason.
+    pub rights: Result<(), Refusal>,
+    pub config: OperatorConfig,
+    /// Who the e-stop says pressed it (`EStop::source`).
+    pub source: String,
+}
+
+/// The server's side of the app's client channels: runs on the server's
+/// threads, so it only checks and converts; the serving loop publishes.
+struct OperatorListener {
+    input: OperatorInput,
+    to_robot: Mutex<mpsc::Sender<OperatorCommand>>,
+    stats: Arc<Mutex<BTreeMap<String, OperatorStats>>>,
+    seq: AtomicU64,
+}
+
+impl OperatorListener {
+    fn refuse(&self, client: &Client, topic: &str, why: &Refusal) {
+        let refused = {
+            let mut stats = self.stats.lock().unwrap_or_else(|p| p.into_inner());
+            let s = stats.entry(topic.to_string()).or_default();
+            s.refused += 1;
+            s.refused
+        };
+        // The first of a topic and every 100th: a teleop panel sends 10 a second.
+        if refused % 100 == 1 {
+            tracing::warn!(topic, refused, "refused from the app: {why}");
+            client.send_status(Status::error(format!("farsight refused {topic}: {why}")));
+        }
+    }
+}
+
+impl ServerListener for OperatorListener {
+    fn on_client_advertise(&self, client: Client, channel: &ClientChannel) {
+        tracing::info!(
+            topic = channel.topic,
+            schema = channel.schema_name,
+            "the app advertised a channel"
+        );
+        if let Err(why) = &self.input.rights {
+            client.send_status(Status::warning(format!(
+                "farsight will refuse {}: {why}",
+                channel.topic
+            )));
+        }
+    }
+
+    fn on_message_data(&self, client: Client, channel: &ClientChannel, payload: &[u8]) {
+        let seq = self.seq.fetch_add(1, Ordering::Relaxed);
+        let command = self.input.rights.clone().and_then(|()| {
+            operator::command_from_client(
+                &channel.topic,
+                &channel.encoding,
+                &channel.schema_name,
+                payload,
+                Stamp::new(seq, WallClock.now_ns()),
+                &self.input.source,
+                &self.input.config,
+            )
+        });
+        match command {
+            Ok(c) => {
+                let sent = self
+                    .to_robot
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .send(c);
+                if sent.is_ok() {
+                    let mut stats = self.stats.lock().unwrap_or_else(|p| p.into_inner());
+                    stats.entry(channel.topic.clone()).or_default().accepted += 1;
+                }
+            }
+            Err(why) => self.refuse(&client, &channel.topic, &why),
+        }
+    }
+}
+
 /// A running Foxglove WebSocket server and its channels.
 pub struct LiveServer {
     ctx: Arc<Context>,
     handle: Option<WebSocketServerHandle>,
     channels: HashMap<String, Arc<RawChannel>>,
     stats: BTreeMap<String, ChannelStats>,
+    from_app: Option<mpsc::Receiver<OperatorCommand>>,
+    operator_stats: Arc<Mutex<BTreeMap<String, OperatorStats>>>,
 }
 
 impl LiveServer {
     /// Starts the server on `host:port` (port 0: any free port, see
     /// [`LiveServer::port`]). Read-only: no client-publish capability.
     pub fn start(host: &str, port: u16) -> Result<Self, LiveError> {
+        Self::start_with(host, port, None)
+    }
+
+    /// [`LiveServer::start`]; with `operator`, the server offers the app
+    /// client publishing (JSON) and takes the operator's messages
+    /// ([`crate::operator`]), to be sent on by [`serve_zenoh`].
+    pub fn start_with(
+        host: &str,
+        port: u16,
+        operator: Option<OperatorInput>,
+    ) -> Result<Self, LiveError> {
         let ctx = Context::new();
-        let handle = WebSocketServer::new()
+        let operator_stats = Arc::new(Mutex::new(BTreeMap::new()));
+        let mut builder = WebSocketServer::new()
             .name("farsight")
             .bind(host, port)
-            .context(&ctx)
+            .context(&ctx);
+        let mut from_app = None;
+        if let Some(input) = operator {
+            let (tx, rx) = mpsc::channel();
+            from_app = Some(rx);
+            builder = builder
+                .capabilities([Capability::ClientPublish])
+                .supported_encodings(["json"])
+                .listener(Arc::new(OperatorListener {
+                    input,
+                    to_robot: Mutex::new(tx),
+                    stats: operator_stats.clone(),
+                    seq: AtomicU64::new(1),
+                }));
+        }
+        let handle = builder
             .start_blocking()
             .map_err(|source| LiveError::Start {
                 host: host.into(),
@@ -71,7 +198,17 @@ impl LiveServer {
             handle: Some(handle),
             channels: HashMap::new(),
             stats: BTreeMap::new(),
+            from_app,
+            operator_stats,
         })
+    }
+
+    /// What the app sent per topic: taken or refused.
+    pub fn operator_stats(&self) -> BTreeMap<String, OperatorStats> {
+        self.operator_stats
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
     }
 
     /// The port the server listens on.
@@ -248,7 +385,34 @@ pub fn serve_shm(
     }
 }
 
-/// Serves what a robot's bridge sends over zenoh (the laptop's view).
+/// The operator's publishers on the robot's imported keys.
+struct ToRobot {
+    goal: Publisher<NavGoal>,
+    teleop: Publisher<VelocityCommand>,
+    estop: Publisher<EStop>,
+}
+
+impl ToRobot {
+    fn open(net: &NetBus) -> Result<Self, TransportError> {
+        Ok(Self {
+            goal: net.publisher(&topics::goal())?,
+            teleop: net.publisher(&topics::command_input("teleop"))?,
+            estop: net.publisher(&topics::estop())?,
+        })
+    }
+
+    fn send(&mut self, command: &OperatorCommand) -> Result<(), TransportError> {
+        match command {
+            OperatorCommand::Goal(g) => self.goal.publish(g),
+            OperatorCommand::Teleop(v) => self.teleop.publish(v),
+            OperatorCommand::EStop(e) => self.estop.publish(e),
+        }
+    }
+}
+
+/// Serves what a robot's bridge sends over zenoh (the laptop's view), and
+/// sends the operator's messages from the app to the robot when the server
+/// was started with an [`OperatorInput`].
 /// A message that does not decode as its topic's kind is counted in the
 /// view's drops and logged, never shown.
 pub fn serve_zenoh(
@@ -258,11 +422,23 @@ pub fn serve_zenoh(
     opts: &ServeOptions,
 ) -> Result<(), LiveError> {
     let tap = net.tap(1024)?;
+    let mut to_robot = match server.from_app {
+        Some(_) => Some(ToRobot::open(net)?),
+        None => None,
+    };
     let start = Instant::now();
     let mut progress = Progress::new(opts.progress);
     let mut failure = None;
     let mut undecodable: BTreeMap<String, u64> = BTreeMap::new();
     ipc::wait_loop(&[], Some(Duration::from_millis(10)), |_| {
+        if let (Some(rx), Some(out)) = (&server.from_app, to_robot.as_mut()) {
+            for command in rx.try_iter() {
+                if let Err(e) = out.send(&command) {
+                    failure = Some(e.into());
+                    return ControlFlow::Break(());
+                }
+            }
+        }
         loop {
             let (topic, bytes) = match tap.try_next() {
                 Ok(Some(m)) => m,
