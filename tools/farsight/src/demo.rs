@@ -7,7 +7,8 @@
 //! subgoal-selection (POVNav) -> velocity-servoing, all in iceoryx2 shared
 //! memory, with this process playing the robot (pose, and a goal 200 m ahead)
 //! and, through the graph's bridge and zenoh, the laptop: it saves every
-//! frame and navigability image it receives as PNG and reports the commands.
+//! frame (JPEG, as the bridge sends it to fit a 10 Mbit/s link) and
+//! navigability image (PNG) it receives and reports the commands.
 //! `--frames`, `--rate-hz` and `--loops` other than the graph's run a copy of
 //! the graph with those values, written to the output folder; `--loops 0`
 //! plays until Ctrl-C (or SIGTERM), then writes the summary as a finished
@@ -219,6 +220,8 @@ pub fn run(a: DemoArgs) -> Result<()> {
         })
         .transpose()?;
     let (mut received, mut bytes, mut last_health, mut camera) = (0u64, 0usize, None, None);
+    // What the bridge sent the frames as (the graph's export config).
+    let mut frame_encoding = PixelEncoding::JPEG;
     // A stall, not a length: the run ends when no frame came for this long.
     const STALL: Duration = Duration::from_secs(60);
     let mut last_frame = Instant::now();
@@ -267,18 +270,21 @@ pub fn run(a: DemoArgs) -> Result<()> {
             }
             continue;
         };
-        if h.encoding != PixelEncoding::PNG {
-            bail!("expected PNG frames from the bridge, got {}", h.encoding);
-        }
+        let extension = match h.encoding {
+            PixelEncoding::JPEG => "jpg",
+            PixelEncoding::PNG => "png",
+            other => bail!("expected JPEG or PNG frames from the bridge, got {other}"),
+        };
+        frame_encoding = h.encoding;
         received += 1;
         last_frame = Instant::now();
         bytes += data.len();
         let name = out
             .join("frames")
-            .join(format!("{:04}.png", h.stamp.frame_seq));
+            .join(format!("{:04}.{extension}", h.stamp.frame_seq));
         std::fs::write(&name, &data)?;
         print!(
-            "\r  frame {:>3}/{}  {}x{} png {:>4} kB  capture {} ms",
+            "\r  frame {:>3}/{}  {}x{} {extension} {:>4} kB  capture {} ms",
             h.stamp.frame_seq,
             expected.map_or("-".to_string(), |n| n.to_string()),
             h.width,
@@ -319,7 +325,8 @@ pub fn run(a: DemoArgs) -> Result<()> {
         if stopped { ", stopped by a signal" } else { "" }
     );
     summary += &format!(
-        "mean PNG size {} kB (frames downsampled 2x by the bridge), {:.1} kB/s of camera frames over zenoh\n",
+        "mean {} size {} kB (frames downsampled 2x by the bridge), {:.1} kB/s of camera frames over zenoh\n",
+        frame_encoding.to_string().to_uppercase(),
         bytes / received.max(1) as usize / 1024,
         bytes as f64 / elapsed / 1e3
     );
