@@ -9,7 +9,7 @@
 use farsight_interfaces::msg::{ImageHeader, PixelEncoding, Pose, Stamp};
 use farsight_interfaces::topics;
 use farsight_interfaces::transport::wire;
-use farsight_recording::write::RecordingWriter;
+use farsight_recording::write::{ChunkBounds, RecordingWriter, WriterOptions};
 use farsight_tests::{Namespace, Proc};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -25,10 +25,22 @@ fn chunks(bytes: &[u8]) -> Vec<(u64, u64)> {
         .collect()
 }
 
-/// `n` poses 100 ms apart (capture times from 1 s), one chunk each, as the
-/// recorder writes them; returns the file's bytes.
+/// The project's recorder writing every message as its own chunk, so that
+/// each message can be damaged or cut on its own (recorders close chunks
+/// at 1 s or 1 MiB by default).
+fn writer(path: &Path, zstd: bool) -> RecordingWriter {
+    let opts = WriterOptions {
+        foxglove: false,
+        zstd,
+        chunks: ChunkBounds::EVERY_MESSAGE,
+    };
+    RecordingWriter::create_with_options(path, &opts).unwrap()
+}
+
+/// `n` poses 100 ms apart (capture times from 1 s), one chunk each;
+/// returns the file's bytes.
 fn poses(path: &Path, n: u64, zstd: bool) -> Vec<u8> {
-    let mut w = RecordingWriter::create_with(path, false, zstd).unwrap();
+    let mut w = writer(path, zstd);
     for k in 1..=n {
         let t = 1_000_000_000 + k * 100_000_000;
         let pose = Pose {
@@ -48,9 +60,10 @@ fn poses(path: &Path, n: u64, zstd: bool) -> Vec<u8> {
     std::fs::read(path).unwrap()
 }
 
-/// `n` 8x6 RGB camera frames 100 ms apart on `camera/front/image`.
+/// `n` 8x6 RGB camera frames 100 ms apart on `camera/front/image`, one
+/// chunk each.
 fn frames(path: &Path, n: u64) -> Vec<u8> {
-    let mut w = RecordingWriter::create(path, false).unwrap();
+    let mut w = writer(path, true);
     for k in 1..=n {
         let t = 1_000_000_000 + k * 100_000_000;
         let h = ImageHeader::packed(Stamp::new(k, t), 0, 8, 6, PixelEncoding::RGB8);
@@ -276,7 +289,7 @@ fn camera_ingest_refuses_bad_files_at_start_and_plays_a_cut_one_then_fails() {
     let ns = Namespace::new("mcapingest");
     let good_path = ns.root.join("good.mcap");
     // Uncompressed, so the flipped byte is a CRC error.
-    let mut w = RecordingWriter::create_with(&good_path, false, false).unwrap();
+    let mut w = writer(&good_path, false);
     for k in 1..=5u64 {
         let h = ImageHeader::packed(Stamp::new(k, k * 1000), 0, 8, 6, PixelEncoding::RGB8);
         w.write(

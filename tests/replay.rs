@@ -432,8 +432,57 @@ fn replays_at_recorded_speed_and_four_times_account_for_every_frame() {
     }
 }
 
+/// What a file holds: per topic, its messages' capture times, in file
+/// order, and whether it is truncated (no summary).
+fn contents(path: &Path) -> (BTreeMap<String, Vec<u64>>, bool) {
+    let rec = Recording::open(path).unwrap();
+    let mut out: BTreeMap<String, Vec<u64>> = BTreeMap::new();
+    let cut = rec
+        .for_each(|m| {
+            out.entry(m.topic.to_string())
+                .or_default()
+                .push(m.capture_time_ns);
+            Ok(())
+        })
+        .unwrap();
+    (out, cut.is_some())
+}
+
+/// Every camera image of a recording is whole: it decodes and validates.
+fn images_whole(path: &Path) -> usize {
+    let (messages, _) = Recording::open(path).unwrap().messages().unwrap();
+    let mut n = 0;
+    for m in messages
+        .iter()
+        .filter(|m| &*m.topic == "camera/front/image")
+    {
+        let (h, d) = wire::split_slice::<farsight_interfaces::msg::ImageHeader>(&m.data).unwrap();
+        h.validate(d.len()).unwrap();
+        n += 1;
+    }
+    n
+}
+
+/// A recorder killed without a word (SIGKILL) loses at most its open chunk:
+/// it closes chunks at 1 s or 1 MiB, and also while nothing new arrives
+/// (`farsight_recording::write`). The test is paced on what the file holds,
+/// never on sleeps:
+/// - While the fixture replays, the file's bytes as they are, which is what
+///   a SIGKILL at that moment leaves, read as a truncated recording whose
+///   images are whole, and they grow: chunks reach the file long before the
+///   recorder stops.
+/// - Once the replay has ended nothing new arrives, and the recorder's last
+///   chunk still reaches the file: the file comes to hold the last message
+///   of every topic the replay sent (the newest one, which a latest-value
+///   reader always gets), so every message the recorder wrote before them
+///   is there too, chunks being written in order. Without the time bound
+///   that chunk would stay in memory until a clean stop, and the wait would
+///   time out (it is generous: the bound is 1 s).
+/// - SIGKILLed then, the recorder has lost nothing: the file holds exactly
+///   those messages, with no summary. It replays up to the cut, then exits 1
+///   naming where the data ends.
 #[test]
-fn a_recorder_killed_mid_run_leaves_a_file_that_reads_to_its_last_message() {
+fn a_recorder_killed_mid_run_or_idle_loses_at_most_its_open_chunk() {
     let ns = Namespace::new("killrec");
     let file = ns.root.join("cut.mcap");
     let mut rec = Proc::start(
@@ -450,39 +499,69 @@ fn a_recorder_killed_mid_run_leaves_a_file_that_reads_to_its_last_message() {
     rec.wait_line(Duration::from_secs(10), |l| l == "farsight-record ready")
         .expect("recorder ready");
     let fixture_file = fixture().join("recording.mcap");
+    // The newest message of each input topic the replay sends.
+    let inputs: Vec<&str> = INPUTS.split(',').collect();
+    let newest = |c: &BTreeMap<String, Vec<u64>>| -> BTreeMap<String, u64> {
+        c.iter()
+            .filter(|(t, _)| inputs.contains(&t.as_str()))
+            .map(|(t, times)| (t.clone(), times.iter().copied().max().unwrap_or(0)))
+            .collect()
+    };
+    let sent = newest(&contents(&fixture_file).0);
+    assert_eq!(sent.len(), inputs.len(), "{sent:?}");
     let mut replay = Proc::start(
         "farsight",
         &["replay", fixture_file.to_str().unwrap(), "--topics", INPUTS],
         &ns,
     );
-    // Mid-replay (8 s at recorded pace), the recorder dies without a word.
-    std::thread::sleep(Duration::from_secs(3));
+    // What a SIGKILL now would leave.
+    let snapshot = ns.root.join("snapshot.mcap");
+    let on_disk = || {
+        std::fs::copy(&file, &snapshot).unwrap();
+        contents(&snapshot)
+    };
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let mid = loop {
+        let (c, cut) = on_disk();
+        let images = c.get("camera/front/image").map_or(0, Vec::len);
+        if images >= 5 {
+            assert!(cut, "a running recorder's file has no summary");
+            break images;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{images} images on disk after 60 s of recording: {}",
+            rec.stderr_so_far()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(images_whole(&snapshot) >= mid);
+    assert_eq!(replay.wait_exit(Duration::from_secs(60)), Some(0));
+    // Idle: the last chunk reaches the file with nothing after it.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let before_kill = loop {
+        let (c, cut) = on_disk();
+        assert!(cut, "a running recorder's file has no summary");
+        if newest(&c) == sent {
+            break c;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "30 s after the replay ended the file holds the newest of {:?}, the replay sent {sent:?}",
+            newest(&c)
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
     rec.kill();
-    assert_eq!(replay.wait_exit(Duration::from_secs(30)), Some(0));
-    let cut = Recording::open(&file).unwrap();
-    let info = cut.info().unwrap();
-    assert!(info.truncated.is_some(), "no summary was written: {info}");
+    let (killed, cut) = contents(&file);
+    assert!(cut, "no summary was written");
+    assert_eq!(killed, before_kill, "the kill lost messages");
+    let images = images_whole(&file);
+    assert!(images >= mid, "{images} images");
+    let info = Recording::open(&file).unwrap().info().unwrap();
     // Foxglove's channels ride along by default: images, poses, transforms.
     for t in ["/camera/front/image", "/state/pose", "/tf"] {
         assert!(info.topics.iter().any(|i| i.topic == t), "{t}: {info}");
-    }
-    let images = info
-        .topics
-        .iter()
-        .find(|t| t.topic == "camera/front/image")
-        .expect("images were recorded");
-    assert!(
-        images.count >= 15 && (images.count as usize) < input_frames().len(),
-        "{info}"
-    );
-    // What it holds is whole: every image decodes, and it replays.
-    let (messages, _) = cut.messages().unwrap();
-    for m in messages
-        .iter()
-        .filter(|m| &*m.topic == "camera/front/image")
-    {
-        let (h, d) = wire::split_slice::<farsight_interfaces::msg::ImageHeader>(&m.data).unwrap();
-        h.validate(d.len()).unwrap();
     }
     // It replays up to the cut, then exits 1 naming where the data ends
     // (--allow-truncated would make that 0; tests/mcap_inputs.rs).
@@ -508,7 +587,7 @@ fn a_recorder_killed_mid_run_leaves_a_file_that_reads_to_its_last_message() {
         )),
         "{err}"
     );
-    let want = format!("  {:<34} {:>8}", "camera/front/image", images.count);
+    let want = format!("  {:<34} {:>8}", "camera/front/image", images);
     assert!(
         out.iter().any(|l| l.starts_with("replayed ")) && out.contains(&want),
         "{out:?}"

@@ -27,9 +27,11 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
-//! Writing is incremental: every message is flushed to the file as its own
-//! chunk, so a recorder killed mid-run leaves a file that reads (and
-//! replays) up to its last complete message.
+//! Writing is incremental: messages go into chunks that are closed when
+//! they have been open 1 s or hold 1 MiB (by default; [`write`]), also
+//! while no message arrives, so a recorder killed mid-run loses at most
+//! its open chunk and leaves a file that reads (and replays) up to the
+//! last closed one. A clean stop loses nothing.
 //!
 //! Reading is verified ([`mcap_file`]): a file that is not an MCAP file, or
 //! is damaged (a bad chunk CRC), is an error naming the file and the byte

@@ -585,7 +585,7 @@ impl McapFile {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::write::RecordingWriter;
+    use crate::write::{ChunkBounds, RecordingWriter, WriterOptions};
     use farsight_interfaces::msg::Stamp;
     use std::path::PathBuf;
 
@@ -614,7 +614,12 @@ mod tests {
 
     /// A finished recording of `n` messages (one chunk each) on two topics.
     fn recording(path: &Path, n: u64, zstd: bool) -> Vec<u8> {
-        let mut w = RecordingWriter::create_with(path, false, zstd).unwrap();
+        let opts = WriterOptions {
+            foxglove: false,
+            zstd,
+            chunks: ChunkBounds::EVERY_MESSAGE,
+        };
+        let mut w = RecordingWriter::create_with_options(path, &opts).unwrap();
         for k in 1..=n {
             let topic = if k % 2 == 0 { "state/pose" } else { "nav/goal" };
             w.write(topic, Stamp::new(k, k * 1000), k * 1000, &noise(k, 300))

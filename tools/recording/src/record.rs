@@ -14,7 +14,18 @@
 //! published before it, it reports frame k on `health/<instance>`; a
 //! simulator that waits for that report (`farsight-sim run --await-health`)
 //! sends frame k+1 only then, so nothing runs ahead of the recorder and
-//! latest-value delivery loses none of the frame's messages.
+//! latest-value delivery loses none of the frame's messages. "Written"
+//! there means handed to the [`RecordingWriter`], whose open chunk is in
+//! memory until it is closed; the ack is about what the graph sent, not
+//! about crashes.
+//!
+//! Chunks are closed by time and size ([`crate::write`]): every loop here
+//! calls [`RecordingWriter::flush_if_due`] on each wake-up (at least every
+//! 50 ms, every 10 ms over zenoh), so a recorder killed without a word
+//! (SIGKILL, a panic) loses at most its open chunk, the messages of the last
+//! chunk age bound (1 s by default) and one wake-up, even when nothing new
+//! arrived. SIGTERM and SIGINT end the loop cleanly and the file is
+//! finished with everything in it.
 
 use crate::pattern::matches_any;
 use crate::write::{ChannelStats, RecordingWriter};
@@ -105,6 +116,11 @@ pub fn record_zenoh(
                 failure = Some(e);
                 return ControlFlow::Break(());
             }
+        }
+        // Idle or not, a chunk open for its age bound goes to the file.
+        if let Err(e) = writer.flush_if_due(Instant::now()) {
+            failure = Some(e);
+            return ControlFlow::Break(());
         }
         if opts.duration.is_some_and(|d| start.elapsed() >= d) {
             return ControlFlow::Break(());
@@ -212,6 +228,12 @@ pub fn record(
             }
             if let Some(h) = &mut health {
                 h.tick(WallClock.now_ns());
+            }
+            // Idle or not, a chunk open for its age bound goes to the file:
+            // this runs on every input and at least every tick (50 ms).
+            if let Err(e) = writer.flush_if_due(Instant::now()) {
+                failure = Some(e);
+                return ControlFlow::Break(());
             }
             if opts.progress.is_some_and(|p| last_progress.elapsed() >= p) {
                 last_progress = Instant::now();

@@ -17,14 +17,20 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let config: RecorderConfig = farsight_stage::load_config(args.config.as_deref())?;
     let bus = Bus::open(&args.instance)?;
     let out = config.out_path();
-    let writer = RecordingWriter::create_with(&out, config.foxglove, config.compression)?;
+    let writer = RecordingWriter::create_with_options(&out, &config.writer_options())?;
     let opts = RecordOptions {
         patterns: config.topics.clone(),
         instance: Some(args.instance.clone()),
         ack: config.ack.clone(),
         ..Default::default()
     };
-    tracing::info!(out = %out.display(), topics = ?config.topics, "recording");
+    tracing::info!(
+        out = %out.display(),
+        topics = ?config.topics,
+        chunk_max_s = config.chunk_max_s,
+        chunk_max_bytes = config.chunk_max_bytes,
+        "recording"
+    );
     let report = record(&bus, writer, &opts, || {
         farsight_stage::announce_ready(&args.instance)
     })?;
@@ -33,6 +39,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             topic,
             messages = r.written.messages,
             skipped = ?r.skipped,
+            foxglove_dropped = r.written.foxglove_dropped,
             "recorded"
         );
     }
