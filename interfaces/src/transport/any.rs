@@ -169,8 +169,12 @@ fn slice_sub<H: IpcHeader, E: super::ipc::IpcElem>(
 fn slice_all_wire<H: IpcHeader + Serialize, E: super::ipc::IpcElem>(
     sub: &SliceSubscriber<H, E>,
 ) -> Result<Vec<(Stamp, Vec<u8>)>, TransportError> {
+    // At most a queue's worth per call (see `Subscriber::drain`): frames
+    // are megabytes, and a publisher that keeps pace would grow this
+    // without end.
     let mut out = Vec::new();
-    while let Some(s) = sub.next()? {
+    while out.len() < sub.buffer_size() {
+        let Some(s) = sub.next()? else { break };
         let bytes = wire::encode_slice(s.header(), s.data()).map_err(decode_err(sub.topic()))?;
         out.push((s.header().stamp(), bytes));
     }

@@ -710,13 +710,21 @@ impl<M: IpcMessage> Subscriber<M> {
 
     /// Every message waiting, oldest first (on a queue subscriber: all
     /// sent since the last call, up to the depth; latest-value: the newest).
+    ///
+    /// At most the subscriber's buffer (its queue depth) per call: a
+    /// publisher that keeps pace with the reader would otherwise keep one
+    /// call taking, and its memory growing, for as long as it publishes.
+    /// What is left is taken by the next call.
     pub fn drain(&self) -> Result<Vec<M>, TransportError> {
         let mut out = Vec::new();
-        while let Some(sample) = self
-            .port
-            .receive()
-            .map_err(|e| ipc_err("receive", &self.topic, e))?
-        {
+        while out.len() < self.port.buffer_size() {
+            let Some(sample) = self
+                .port
+                .receive()
+                .map_err(|e| ipc_err("receive", &self.topic, e))?
+            else {
+                break;
+            };
             self.observe(sample.payload().stamp().frame_seq);
             out.push(*sample.payload());
         }
@@ -873,6 +881,12 @@ impl<H: IpcHeader, E: IpcElem> SliceSubscriber<H, E> {
             self.observe(s.user_header().stamp().frame_seq);
         }
         Ok(newest.map(SliceSample))
+    }
+
+    /// How many messages it holds at most: its queue depth (1 for a
+    /// latest-value subscriber).
+    pub fn buffer_size(&self) -> usize {
+        self.port.buffer_size()
     }
 
     /// The oldest message waiting, if any (on a queue subscriber: each
