@@ -194,7 +194,7 @@ mod tests {
         std::fs::write(&path, "[operator]\nteleop_max_linear_mps = -1.0\n").unwrap();
         let e = format!("{:#}", config_file(Some(&path)).err().unwrap());
         assert!(
-            e.contains("foxglove.toml") && e.contains("operator.teleop_max_linear_mps = -1"),
+            e.contains("foxglove.toml") && e.contains("`operator.teleop_max_linear_mps` = -1"),
             "{e}"
         );
         let _ = std::fs::remove_dir_all(&dir);
