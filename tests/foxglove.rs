@@ -86,15 +86,36 @@ fn live_demo(ns: &Namespace, method: &str, require: &[&str]) -> Value {
 /// Runs `node tests/foxglove/SCRIPT ARGS --report FILE` and prints its
 /// table under `what`; its report, or why it failed (exit status, output).
 fn node_script(ns: &Namespace, what: &str, script: &str, args: &[&str]) -> Result<Value, String> {
+    run_script(
+        "node",
+        "Node.js is on every machine of this project",
+        ns,
+        what,
+        script,
+        args,
+    )
+}
+
+/// `PROGRAM tests/foxglove/SCRIPT ARGS --report FILE` (`missing` says how to
+/// get PROGRAM), its table printed under `what`: its report, or why it
+/// failed (exit status, output).
+fn run_script(
+    program: &str,
+    missing: &str,
+    ns: &Namespace,
+    what: &str,
+    script: &str,
+    args: &[&str],
+) -> Result<Value, String> {
     let report = ns.root.join(format!("{}.json", script.replace('.', "-")));
     let _ = std::fs::remove_file(&report);
-    let run = Command::new("node")
+    let run = Command::new(program)
         .arg(Path::new("foxglove").join(script))
         .args(args)
         .arg("--report")
         .arg(&report)
         .output()
-        .map_err(|e| format!("running node (Node.js is on every machine of this project): {e}"))?;
+        .map_err(|e| format!("running {program} ({missing}): {e}"))?;
     let table = String::from_utf8_lossy(&run.stdout);
     eprintln!("{what}:\n{table}");
     if !run.status.success() {
@@ -398,34 +419,14 @@ const PYTHON: &str = "foxglove/.venv/bin/python";
 /// FILE` and prints its table under `what`; its report, or why it failed
 /// (not installed, exit status, output).
 fn python_script(ns: &Namespace, what: &str, script: &str, args: &[&str]) -> Result<Value, String> {
+    const INSTALL: &str = "a virtual environment from tests/foxglove/requirements.txt: \
+                           run `cargo xtask setup`";
     if !Path::new(PYTHON).exists() {
         return Err(format!(
-            "the Python test reader is not installed (no tests/{PYTHON}): run `cargo xtask setup` \
-             (a virtual environment from tests/foxglove/requirements.txt)"
+            "the Python test reader is not installed (no tests/{PYTHON}): {INSTALL}"
         ));
     }
-    let report = ns.root.join(format!("{}.json", script.replace('.', "-")));
-    let _ = std::fs::remove_file(&report);
-    let run = Command::new(PYTHON)
-        .arg(Path::new("foxglove").join(script))
-        .args(args)
-        .arg("--report")
-        .arg(&report)
-        .output()
-        .map_err(|e| format!("running {PYTHON}: {e}"))?;
-    let table = String::from_utf8_lossy(&run.stdout);
-    eprintln!("{what}:\n{table}");
-    if !run.status.success() {
-        return Err(format!(
-            "{} ({}):\n{table}\n{}",
-            script,
-            run.status,
-            String::from_utf8_lossy(&run.stderr)
-        ));
-    }
-    let text =
-        std::fs::read_to_string(&report).map_err(|e| format!("{}: {e}", report.display()))?;
-    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", report.display()))
+    run_script(PYTHON, INSTALL, ns, what, script, args)
 }
 
 /// The two readers of one recording agree: the same Foxglove channels with
