@@ -34,6 +34,9 @@ use serde_json::Value;
 /// The Foxglove topics the operator may publish on.
 pub const ACCEPTED_TOPICS: [&str; 3] = ["/nav/goal", "/cmd/teleop", "/safety/estop"];
 
+/// The largest message from the app that is parsed at all.
+pub const MAX_PAYLOAD_BYTES: usize = 64 * 1024;
+
 /// Limits on what the app may send; `[operator]` in the `farsight
 /// foxglove` config file, every key optional (defaults shown).
 ///
@@ -173,6 +176,14 @@ pub fn command_from_client(
         schema: schema.into(),
         why,
     };
+    // A goal, a twist or an e-stop is a few hundred bytes: anything much
+    // larger is not one, and is not parsed.
+    if payload.len() > MAX_PAYLOAD_BYTES {
+        return Err(bad(format!(
+            "{} bytes: larger than the {MAX_PAYLOAD_BYTES} a command may be",
+            payload.len()
+        )));
+    }
     let json: Value = serde_json::from_slice(payload).map_err(|e| bad(format!("not JSON: {e}")))?;
     // ROS 2 names ("geometry_msgs/msg/Twist") and ROS 1 names are the same message.
     let schema_key = schema.replace("/msg/", "/");
@@ -518,6 +529,14 @@ mod tests {
                 assert!(e.contains(n), "{topic} {json}: {e:?} lacks {n:?}");
             }
         }
+        let huge = format!(
+            r#"{{"data":true,"pad":"{}"}}"#,
+            "x".repeat(MAX_PAYLOAD_BYTES)
+        );
+        let e = take("/safety/estop", "std_msgs/Bool", &huge)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("larger than the 65536"), "{e}");
         let e = command_from_client(
             "/cmd/teleop",
             "cdr",
