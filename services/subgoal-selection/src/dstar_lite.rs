@@ -337,7 +337,15 @@ impl DStarLite {
             grid.width,
             grid.height
         );
-        let scale = min_cost_s_per_m * grid.resolution_m;
+        // The heuristic a millionth under the cheapest cell. A key is a sum
+        // of step costs plus the heuristic plus km; where the heuristic is
+        // tight (road cells at exactly the cheapest cost) the key of a
+        // vertex on the start's path equals the start's key on paper and can
+        // exceed it by one bit in floating point, which ended the search
+        // with that vertex unsettled and the greedy path cycling through it.
+        // A millionth keeps every such key below the start's by far more
+        // than rounding, and costs the search nothing measurable.
+        let scale = min_cost_s_per_m * grid.resolution_m * (1.0 - 1e-6);
         let mut p = Self {
             grid,
             start,
@@ -543,6 +551,11 @@ impl DStarLite {
                 .map(|s| (s, self.grid.step_cost(c, s) + self.g[self.idx(s)]))
                 .min_by(|a, b| a.1.total_cmp(&b.1));
             match next {
+                // Costs are not negative, so along a settled path g never
+                // rises; a step that raises it means the
+                // search left an inconsistent vertex here, and following
+                // it could cycle. No path is the safe answer.
+                Some((s, _)) if self.g[self.idx(s)] > self.g[self.idx(c)] => return Vec::new(),
                 Some((s, v)) if v.is_finite() => {
                     path.push(s);
                     c = s;
@@ -724,6 +737,67 @@ mod tests {
             }
         }
         assert!(compared > 80, "only {compared} solvable cases");
+    }
+
+    /// FITAM's sense-plan-act (section V-A4) on a road beside a forest:
+    /// unknown cells plan at 1 s/m, the agent sees a 25 m disc of true costs
+    /// (forest 2, road 0.2) and travels up to 20 m a round. Key sums tie on
+    /// paper here (road steps cost exactly the heuristic's 0.2 s/m) and
+    /// differ in the last bit; ending the search on such a tie left an
+    /// unsettled vertex on the path, and the greedy path went back and
+    /// forth between two road cells until the iteration limit.
+    #[test]
+    fn paths_stay_settled_when_keys_tie_up_to_rounding() {
+        let (w, h) = (400, 200);
+        let mut truth = CostGrid::new(w, h, 1.0, 2.0);
+        let mut road = |x0: usize, y0: usize, x1: usize, y1: usize| {
+            for y in y0..=y1 {
+                for x in x0..=x1 {
+                    truth.set(x, y, 0.2);
+                }
+            }
+        };
+        road(40, 160, 360, 164);
+        road(38, 100, 42, 164);
+        road(358, 100, 362, 164);
+        let (start, goal) = ((20, 100), (380, 100));
+        // The heuristic's scale is the cheapest cell cost as the map holds
+        // it (f32), so road steps cost exactly what the heuristic says.
+        let mut d = DStarLite::new(CostGrid::new(w, h, 1.0, 1.0), start, goal, 0.2f32 as f64);
+        let mut at = start;
+        for round in 0..200 {
+            d.move_start(at);
+            let mut seen = Vec::new();
+            for y in at.1.saturating_sub(25)..(at.1 + 26).min(h) {
+                for x in at.0.saturating_sub(25)..(at.0 + 26).min(w) {
+                    if (x as f64 - at.0 as f64).hypot(y as f64 - at.1 as f64) <= 25.0 {
+                        seen.push((x, y, truth.get(x, y)));
+                    }
+                }
+            }
+            d.set_costs(seen);
+            let cost = d.compute().expect("the world is open");
+            let p = d.path();
+            let mut cells = p.clone();
+            cells.sort_unstable();
+            cells.dedup();
+            assert!(
+                !p.is_empty() && cells.len() == p.len(),
+                "round {round} at {at:?}: {} path cells, {} distinct",
+                p.len(),
+                cells.len()
+            );
+            assert!(
+                (d.grid().path_cost(&p) - cost).abs() < 1e-6 * cost,
+                "round {round}"
+            );
+            // Up to 20 cells along it.
+            at = p[p.len().min(21) - 1];
+            if at == goal {
+                return;
+            }
+        }
+        panic!("the goal was not reached in 200 rounds");
     }
 
     #[test]
