@@ -5,6 +5,12 @@
 //! limits, and replans from wherever it is after an intervention moved it.
 //! `farsight-sim run --drive expert` uses it to make training recordings
 //! without the stage graph.
+//!
+//! [`expert_plan`] is the same path without driving it, and its time: the
+//! yardstick of the navigation benchmark's time limit (issue 20, item 1:
+//! a trial may take [`TimeLimitRule::factor`] times the expert's time on
+//! the same world, start and goal). LRN (section IV) and HIP (section V)
+//! judge a method's time against a privileged driver's the same way.
 
 use crate::world::World;
 use farsight_subgoal_selection::dstar_lite::{astar, CostGrid};
@@ -21,6 +27,127 @@ pub struct Expert {
     limiter: RateLimiter,
 }
 
+/// The expert's planning grid: the world's costs, cells next to an
+/// obstacle made dear.
+fn expert_grid(world: &World) -> CostGrid {
+    let mut grid = CostGrid::new(world.width, world.height, world.resolution_m, 1.0);
+    for y in 0..world.height as i64 {
+        for x in 0..world.width as i64 {
+            // Beside an obstacle is allowed but dear: forests with 1 m
+            // gaps stay passable, and open ground is preferred.
+            let near_lethal = (-1..=1).any(|dy| (-1..=1).any(|dx| world.lethal(x + dx, y + dy)));
+            let c = world.cost_s_per_m(x, y);
+            let c = if near_lethal && c.is_finite() {
+                c.max(4.0)
+            } else {
+                c
+            };
+            grid.set(x as usize, y as usize, c);
+        }
+    }
+    grid
+}
+
+/// The grid cell of a world point, if it is on the world.
+fn grid_cell(world: &World, p: [f64; 2]) -> Option<(usize, usize)> {
+    let (x, y) = world.cell_of(p[0], p[1]);
+    world.contains(x, y).then_some((x as usize, y as usize))
+}
+
+/// Version of the time-limit rule ([`TimeLimitRule`], [`expert_plan`]'s
+/// time), hashed into every benchmark result: change it whenever either
+/// changes what a trial is allowed.
+/// 1: the limit is `factor` x the expert's time (A* path, each cell at the
+/// speed the robot may drive there), capped by an absolute limit if given.
+pub const TIME_LIMIT_RULE_VERSION: u32 = 1;
+
+/// The expert's path from start to goal and how long driving it takes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExpertPlan {
+    /// Cell centres (world metres), start to goal.
+    pub path: Vec<[f64; 2]>,
+    /// [`traversal_time_s`] of the path.
+    pub time_s: f64,
+}
+
+/// The expert's path (the A* path [`Expert`] drives) and its time, without
+/// driving it; `None` when the start or goal is off the world or no path
+/// joins them.
+pub fn expert_plan(
+    world: &World,
+    start: [f64; 2],
+    goal: [f64; 2],
+    max_linear_mps: f64,
+) -> Option<ExpertPlan> {
+    let (s, g) = (grid_cell(world, start)?, grid_cell(world, goal)?);
+    let (cells, _) = astar(&expert_grid(world), s, g, 0.2)?;
+    let r = world.resolution_m;
+    let path: Vec<[f64; 2]> = cells
+        .iter()
+        .map(|&(x, y)| [x as f64 * r, y as f64 * r])
+        .collect();
+    let time_s = traversal_time_s(world, &path, max_linear_mps);
+    Some(ExpertPlan { path, time_s })
+}
+
+/// Time to drive along `path` (cell centres) at the fastest speed the
+/// simulated robot may drive, as it enforces it (`crate::robot`): in a cell
+/// costing c s/m at most min(1 / c, `max_linear_mps`). Each step between two
+/// cell centres is half in each cell, so a step of length L from a to b
+/// takes L/2 x max(c_a, 1/v) + L/2 x max(c_b, 1/v). Acceleration and
+/// turning are not counted: this is a lower bound on any drive of the path
+/// (the expert's own drive takes a little longer), the true world's costs,
+/// not the expert's dearer margins beside obstacles. A lethal cell on the
+/// path makes it infinite.
+pub fn traversal_time_s(world: &World, path: &[[f64; 2]], max_linear_mps: f64) -> f64 {
+    let floor = 1.0 / max_linear_mps;
+    let s_per_m = |p: &[f64; 2]| {
+        let (x, y) = world.cell_of(p[0], p[1]);
+        (world.cost_s_per_m(x, y) as f64).max(floor)
+    };
+    path.windows(2)
+        .map(|w| {
+            let l = (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]);
+            0.5 * l * (s_per_m(&w[0]) + s_per_m(&w[1]))
+        })
+        .sum()
+}
+
+/// How long a benchmark trial may take: `factor` x the expert's time on the
+/// same world, start and goal ([`expert_plan`]), at most `cap_s`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TimeLimitRule {
+    pub factor: f64,
+    /// An absolute limit (s): the limit when there is no expert time.
+    pub cap_s: Option<f64>,
+}
+
+impl TimeLimitRule {
+    /// The limit for a trial whose expert took `expert_time_s` (`None`: no
+    /// expert path). An error names the bad value: a factor or cap that is
+    /// not a positive number, or no expert time and no cap.
+    pub fn limit_s(&self, expert_time_s: Option<f64>) -> Result<f64, String> {
+        if !(self.factor.is_finite() && self.factor > 0.0) {
+            return Err(format!(
+                "time limit factor {}: expected a positive number",
+                self.factor
+            ));
+        }
+        if let Some(cap) = self.cap_s.filter(|c| !(c.is_finite() && *c > 0.0)) {
+            return Err(format!(
+                "absolute time limit {cap} s: expected a positive number of seconds"
+            ));
+        }
+        match (expert_time_s.filter(|t| t.is_finite()), self.cap_s) {
+            (Some(t), cap) => Ok((self.factor * t).min(cap.unwrap_or(f64::INFINITY))),
+            (None, Some(cap)) => Ok(cap),
+            (None, None) => {
+                Err("no expert path to the goal and no absolute time limit to fall back on".into())
+            }
+        }
+    }
+}
+
 impl Expert {
     /// `None` when no path reaches the goal.
     pub fn new(
@@ -29,25 +156,9 @@ impl Expert {
         goal: [f64; 2],
         max_linear_mps: f64,
     ) -> Option<Self> {
-        let mut grid = CostGrid::new(world.width, world.height, world.resolution_m, 1.0);
-        for y in 0..world.height as i64 {
-            for x in 0..world.width as i64 {
-                // Beside an obstacle is allowed but dear: forests with 1 m
-                // gaps stay passable, and open ground is preferred.
-                let near_lethal =
-                    (-1..=1).any(|dy| (-1..=1).any(|dx| world.lethal(x + dx, y + dy)));
-                let c = world.cost_s_per_m(x, y);
-                let c = if near_lethal && c.is_finite() {
-                    c.max(4.0)
-                } else {
-                    c
-                };
-                grid.set(x as usize, y as usize, c);
-            }
-        }
         let g = world.cell_of(goal[0], goal[1]);
         let mut e = Self {
-            grid,
+            grid: expert_grid(world),
             goal: (g.0.max(0) as usize, g.1.max(0) as usize),
             path: Vec::new(),
             progress: 0,
@@ -106,5 +217,80 @@ impl Expert {
         let target = carrot_point(&ahead, self.servo.lookahead_m)
             .map_or((0.0, 0.0), |p| carrot_command(p, &self.servo));
         self.limiter.limit(target, dt_s, &self.servo)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::world::Cover;
+
+    /// A road 12 x 7 m with a column of bushes across it at x = 5; start
+    /// (2, 3), goal (9, 3): the straight path, 7 steps of 1 m.
+    fn road_with_bushes() -> World {
+        let mut w = World::new(12, 7, Cover::Road);
+        w.fill_cover(5, 0, 5, 6, Cover::Bushes);
+        w
+    }
+
+    #[test]
+    fn the_expert_time_is_the_paths_time_at_the_speed_each_cell_allows() {
+        let w = road_with_bushes();
+        let plan = expert_plan(&w, [2.0, 3.0], [9.0, 3.0], 2.0).unwrap();
+        let straight: Vec<[f64; 2]> = (2..=9).map(|x| [x as f64, 3.0]).collect();
+        assert_eq!(plan.path, straight);
+        // Road costs 0.2 s/m, but the robot drives 2 m/s at most: 0.5 s/m.
+        // Five steps on road (0.5 s each), two half in bushes (10 s/m):
+        // 2 x (0.5 x 0.5 + 0.5 x 10) = 10.5 s. 2.5 + 10.5 = 13.0 s.
+        assert!((plan.time_s - 13.0).abs() < 1e-9, "{}", plan.time_s);
+        // At 1 m/s: 5 x 1 + 2 x (0.5 + 5) = 16 s.
+        let slow = expert_plan(&w, [2.0, 3.0], [9.0, 3.0], 1.0).unwrap();
+        assert!((slow.time_s - 16.0).abs() < 1e-9, "{}", slow.time_s);
+        // A diagonal step on open road: sqrt(2) x 0.5 s/m.
+        let d = traversal_time_s(&w, &[[1.0, 1.0], [2.0, 2.0]], 2.0);
+        assert!((d - std::f64::consts::SQRT_2 * 0.5).abs() < 1e-12, "{d}");
+    }
+
+    #[test]
+    fn no_path_or_an_off_world_end_has_no_expert_time() {
+        let mut w = road_with_bushes();
+        w.fill_cover(6, 0, 6, 6, Cover::Water);
+        assert_eq!(expert_plan(&w, [2.0, 3.0], [9.0, 3.0], 2.0), None);
+        let w = road_with_bushes();
+        assert_eq!(expert_plan(&w, [2.0, 3.0], [90.0, 3.0], 2.0), None);
+    }
+
+    #[test]
+    fn the_time_limit_is_the_factor_times_the_expert_capped_and_bad_values_are_named() {
+        let rule = TimeLimitRule {
+            factor: 3.0,
+            cap_s: None,
+        };
+        assert_eq!(rule.limit_s(Some(13.0)), Ok(39.0));
+        let capped = TimeLimitRule {
+            cap_s: Some(30.0),
+            ..rule
+        };
+        assert_eq!(capped.limit_s(Some(13.0)), Ok(30.0));
+        assert_eq!(capped.limit_s(Some(5.0)), Ok(15.0));
+        assert_eq!(capped.limit_s(None), Ok(30.0));
+        let e = rule.limit_s(None).unwrap_err();
+        assert!(e.contains("no expert path"), "{e}");
+        for factor in [0.0, -1.0, f64::NAN] {
+            let e = TimeLimitRule {
+                factor,
+                cap_s: None,
+            }
+            .limit_s(Some(1.0))
+            .unwrap_err();
+            assert!(e.contains(&format!("{factor}")), "{e}");
+        }
+        let e = TimeLimitRule {
+            factor: 3.0,
+            cap_s: Some(-5.0),
+        }
+        .limit_s(Some(1.0))
+        .unwrap_err();
+        assert!(e.contains("-5"), "{e}");
     }
 }
