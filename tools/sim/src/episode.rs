@@ -17,6 +17,14 @@
 //! 0 to only count.
 
 use crate::render::PALETTE;
+
+/// Version of the stuck and intervention rule, hashed into every benchmark
+/// result: change it whenever [`EpisodeConfig`]'s defaults or
+/// [`Episode::step`]'s judgement of being stuck change.
+/// 1: less than 1 m in 10 s, carried 3 m back.
+/// 2: less than 1 m, or less than a quarter of what the terrain allowed
+/// when that is less, in 10 s; carried 3 m back (commit 60a2c7e).
+pub const INTERVENTION_RULE_VERSION: u32 = 2;
 use crate::robot::{Robot, RobotLimits};
 use crate::scenario::Scenario;
 
@@ -77,6 +85,8 @@ pub struct Episode {
     pub time_s: f64,
     pub track: Vec<[f64; 2]>,
     pub interventions: u32,
+    /// Where the robot stood at each intervention, before it was carried.
+    pub intervention_points: Vec<[f64; 2]>,
     /// Time and position at the start of the current stuck window.
     window_start: (f64, [f64; 2]),
     /// How far the terrain's speed limits let the robot drive since then.
@@ -94,6 +104,7 @@ impl Episode {
             robot,
             time_s: 0.0,
             interventions: 0,
+            intervention_points: Vec::new(),
             window_start: (0.0, [robot.x_m, robot.y_m]),
             window_reach_m: 0.0,
             outcome: Outcome::Driving,
@@ -134,6 +145,7 @@ impl Episode {
                 .min(self.config.stuck_progress_fraction * self.window_reach_m);
             if moved < needed {
                 self.interventions += 1;
+                self.intervention_points.push(here);
                 self.carry_back();
             }
             self.window_start = (self.time_s, [self.robot.x_m, self.robot.y_m]);
@@ -313,8 +325,15 @@ mod tests {
         let sum = e.summary();
         assert_eq!(sum.outcome, Outcome::TimedOut);
         assert!(sum.collisions > 0 && sum.interventions == 1, "{sum:?}");
+
         assert!(sum.distance_m > 36.0 && sum.distance_m < 40.0, "{sum:?}");
         let wall_x = e.track.iter().map(|p| p[0]).fold(0.0, f64::max);
+        assert_eq!(e.intervention_points.len(), 1);
+        assert!(
+            (e.intervention_points[0][0] - wall_x).abs() < 0.3,
+            "the intervention is marked where the robot was pinned: {:?} (wall at x = {wall_x})",
+            e.intervention_points
+        );
         let at_wall = e.track.iter().position(|p| p[0] == wall_x).unwrap();
         assert!(
             e.track[at_wall..]

@@ -12,6 +12,13 @@
 use crate::rng::SplitMix64;
 use crate::world::{Cover, Obstacle, World};
 
+/// Version of the world generator (every named scenario and
+/// [`random_world`], and the costs and obstacles of `crate::world` they
+/// use), hashed into every benchmark result: change it whenever a seed
+/// would build a different world, so results on different worlds are never
+/// merged or compared as one.
+pub const WORLD_GENERATOR_VERSION: u32 = 1;
+
 #[derive(Debug, Clone)]
 pub struct Scenario {
     pub name: String,
