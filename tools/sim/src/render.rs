@@ -9,6 +9,11 @@
 //! Each column uses the azimuth of its principal-row pixel: exact for a level
 //! pinhole camera, an approximation for pitched or fisheye cameras (whose
 //! columns bend), which is what column marching buys its speed with.
+//!
+//! Also the top-down map picture ([`map_picture`]): the world by class, the
+//! driven track, the expert's path, start, goal and the interventions, as
+//! `farsight bench nav --trace` draws each trial that got stuck (issue 20,
+//! item 1: where and why trials strand the robot).
 
 use crate::world::{class, World};
 use farsight_interfaces::camera::Camera;
@@ -319,6 +324,108 @@ impl Channels {
     };
 }
 
+/// What [`map_picture`] draws over the world (world metres).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct MapMarks<'a> {
+    /// The robot's track (drawn last, on top).
+    pub track: &'a [[f64; 2]],
+    /// The expert's path.
+    pub expert_path: &'a [[f64; 2]],
+    /// Where frames went without a command.
+    pub no_command: &'a [[f64; 2]],
+    /// Where interventions happened.
+    pub interventions: &'a [[f64; 2]],
+    pub start: [f64; 2],
+    pub goal: [f64; 2],
+}
+
+/// The map picture's colours.
+pub mod map_colour {
+    pub const TRACK: [u8; 3] = [255, 255, 255];
+    pub const EXPERT: [u8; 3] = [0, 230, 255];
+    pub const NO_COMMAND: [u8; 3] = [255, 150, 0];
+    pub const INTERVENTION: [u8; 3] = [255, 0, 255];
+    pub const START: [u8; 3] = [40, 80, 255];
+    pub const GOAL: [u8; 3] = [255, 30, 30];
+}
+
+/// A top-down picture of `world` (north up, `crate::run::map_scale`
+/// pixels per cell) with `marks`: the expert's path (cyan), the driven
+/// track (white), frames without a command (orange dots), each
+/// intervention (a magenta cross), the start (blue) and goal (red).
+/// Returns width, height and packed RGB8.
+pub fn map_picture(world: &World, marks: &MapMarks) -> (usize, usize, Vec<u8>) {
+    let k = crate::run::map_scale(world.width, world.height);
+    let (w, h) = (world.width * k, world.height * k);
+    let mut rgb = vec![0u8; w * h * 3];
+    for py in 0..h {
+        for px in 0..w {
+            let (cx, cy) = ((px / k) as i64, (world.height - 1 - py / k) as i64);
+            let c = PALETTE[world.look(cx, cy).top_class as usize];
+            rgb[(py * w + px) * 3..][..3].copy_from_slice(&c);
+        }
+    }
+    // Picture coordinates of a world point: cell (cx, cy) spans pixels
+    // [cx k, (cx + 1) k) across and its row, counted from the top, down.
+    let r = world.resolution_m;
+    let to_px = |p: [f64; 2]| {
+        (
+            (p[0] / r + 0.5) * k as f64,
+            (world.height as f64 - (p[1] / r + 0.5)) * k as f64,
+        )
+    };
+    let mut put = |x: f64, y: f64, c: [u8; 3]| {
+        if x >= 0.0 && y >= 0.0 && (x as usize) < w && (y as usize) < h {
+            let i = (y as usize * w + x as usize) * 3;
+            rgb[i..i + 3].copy_from_slice(&c);
+        }
+    };
+    let line = |points: &[[f64; 2]], c: [u8; 3], put: &mut dyn FnMut(f64, f64, [u8; 3])| {
+        for pair in points.windows(2) {
+            let (a, b) = (to_px(pair[0]), to_px(pair[1]));
+            let n = ((b.0 - a.0).abs().max((b.1 - a.1).abs()) * 2.0)
+                .ceil()
+                .max(1.0) as usize;
+            for i in 0..=n {
+                let t = i as f64 / n as f64;
+                put(a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1), c);
+            }
+        }
+        if let [p] = points {
+            let q = to_px(*p);
+            put(q.0, q.1, c);
+        }
+    };
+    line(marks.expert_path, map_colour::EXPERT, &mut put);
+    line(marks.track, map_colour::TRACK, &mut put);
+    let spot = (k as f64).max(2.0);
+    for p in marks.no_command {
+        let (x, y) = to_px(*p);
+        put(x, y, map_colour::NO_COMMAND);
+        put(x + 1.0, y, map_colour::NO_COMMAND);
+    }
+    for p in marks.interventions {
+        let (x, y) = to_px(*p);
+        for d in -3..=3 {
+            let d = d as f64 * spot / 2.0;
+            put(x + d, y + d, map_colour::INTERVENTION);
+            put(x + d, y - d, map_colour::INTERVENTION);
+        }
+    }
+    for (p, c) in [
+        (marks.start, map_colour::START),
+        (marks.goal, map_colour::GOAL),
+    ] {
+        let (x, y) = to_px(p);
+        for dy in -2..=2 {
+            for dx in -2..=2 {
+                put(x + dx as f64 * spot / 2.0, y + dy as f64 * spot / 2.0, c);
+            }
+        }
+    }
+    (w, h, rgb)
+}
+
 /// Columns copied into the row-major frame together.
 const COLUMN_BLOCK: usize = 16;
 
@@ -405,6 +512,43 @@ mod tests {
         assert_eq!(rgb_only.rgb, full.rgb);
         assert!(rgb_only.class_ids.iter().all(|&c| c == 0), "not filled");
         assert!(full.class_ids.contains(&class::WALL) && full.class_ids.contains(&class::BUSHES));
+    }
+
+    #[test]
+    fn the_map_picture_draws_the_track_over_the_expert_and_marks_interventions() {
+        use map_colour::*;
+        let mut world = World::new(100, 50, Cover::Grass);
+        world.line_obstacle((50, 10), (50, 40), Obstacle::Wall);
+        let track: Vec<[f64; 2]> = (10..=40).map(|x| [x as f64, 25.0]).collect();
+        let expert = [[10.0, 25.0], [30.0, 5.0], [90.0, 25.0]];
+        let marks = MapMarks {
+            track: &track,
+            expert_path: &expert,
+            interventions: &[[40.0, 25.0]],
+            start: [10.0, 25.0],
+            goal: [90.0, 25.0],
+            ..Default::default()
+        };
+        let (w, h, rgb) = map_picture(&world, &marks);
+        let k = crate::run::map_scale(100, 50);
+        assert_eq!((w, h, rgb.len()), (100 * k, 50 * k, 100 * k * 50 * k * 3));
+        let at = |x: f64, y: f64| {
+            let (px, py) = ((x + 0.5) * k as f64, (50.0 - (y + 0.5)) * k as f64);
+            let i = (py as usize * w + px as usize) * 3;
+            [rgb[i], rgb[i + 1], rgb[i + 2]]
+        };
+        assert_eq!(at(20.0, 25.0), TRACK);
+        assert_eq!(
+            at(20.0, 15.0),
+            EXPERT,
+            "halfway down the expert's first leg"
+        );
+        assert_eq!(at(40.0, 25.0), INTERVENTION);
+        assert_eq!(at(90.0, 25.0), GOAL);
+        assert_eq!(at(50.0, 30.0), PALETTE[class::WALL as usize]);
+        assert_eq!(at(70.0, 45.0), PALETTE[class::GRASS as usize]);
+        let count = |c: [u8; 3]| rgb.chunks(3).filter(|p| *p == c).count();
+        assert!(count(TRACK) >= 25 * k, "{}", count(TRACK));
     }
 
     #[test]
