@@ -35,6 +35,9 @@ pub enum BenchCommand {
     Planning(PlanningArgs),
     /// The navigation benchmark: seeded trials per scenario and method in the simulator.
     Nav(NavArgs),
+    /// Merges `bench nav --shard K/N --out FILE.json` files and prints the
+    /// table of the whole run; refuses mixed versions, hashes or commits.
+    NavMerge(crate::bench_record::NavMergeArgs),
     /// What `farsight record` sustains writing 1280x720 RGB frames to disk.
     Recorder(crate::bench_recorder::RecorderArgs),
     /// (internal) the receiving side of one cell of the transport benchmark.
@@ -133,13 +136,29 @@ pub struct NavArgs {
     /// named by its stem).
     #[arg(long, value_delimiter = ',')]
     pub graphs: Vec<std::path::PathBuf>,
-    /// Simulated seconds per trial (road-forest's forest allows 0.5 m/s).
-    #[arg(long, default_value_t = 600.0)]
-    pub max_time_s: f64,
+    /// A trial may take this many times the expert's time on its world,
+    /// start and goal (A* over the true world, each cell at the speed the
+    /// robot may drive there).
+    #[arg(long, default_value_t = 3.0)]
+    pub time_limit_x: f64,
+    /// An absolute limit on a trial's simulated seconds, below the
+    /// expert-relative one (and the limit when there is no expert path).
+    #[arg(long)]
+    pub max_time_s: Option<f64>,
     /// Write each trial's poses (`<scenario>-<method>-<seed>.csv`, as
-    /// `farsight-sim run` writes `poses.csv`) into this folder.
+    /// `farsight-sim run` writes `poses.csv`) into this folder, and a
+    /// top-down picture of each trial that did not reach the goal or needed
+    /// an intervention (`<scenario>-<method>-<seed>.png`).
     #[arg(long)]
     pub trace: Option<std::path::PathBuf>,
+    /// Run only the K-th of N parts of the trial list (scenario x method x
+    /// seed; trial i is in part (i mod N) + 1), e.g. one per array job.
+    #[arg(long)]
+    pub shard: Option<crate::bench_record::Shard>,
+    /// Write the results (commit, versions, protocol hash, shard, each
+    /// trial's summary) to this JSON file, rewritten after every trial.
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
     /// Print each method and the graph file it runs (tab-separated), run nothing.
     #[arg(long)]
     pub list: bool,
@@ -148,6 +167,7 @@ pub struct NavArgs {
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Nav(a) => crate::bench_nav::run(a),
+        BenchCommand::NavMerge(a) => crate::bench_record::run_merge(a),
         BenchCommand::Recorder(a) => crate::bench_recorder::run(a),
         BenchCommand::Planning(a) => crate::bench_planning::run(a),
         BenchCommand::Navigation(a) => crate::bench_navigation::run(a),

@@ -11,11 +11,12 @@
 use crate::graph::Graph;
 use anyhow::{bail, Result};
 use farsight_interfaces::message::Message;
-use farsight_interfaces::msg::VelocityCommand;
+use farsight_interfaces::msg::{HealthState, VelocityCommand};
 use farsight_interfaces::topics;
 use farsight_sim::episode::{Outcome, PoseLog, Summary};
 use farsight_sim::sim_robot::{SimOptions, SimRobot};
 use farsight_stage::executor::Executor;
+use std::collections::BTreeMap;
 use std::path::Path;
 
 /// What one driven trial came to.
@@ -28,6 +29,17 @@ pub struct Trial {
     pub late: u64,
     /// Stage steps run over all nodes.
     pub stage_steps: u64,
+    /// Why frames went without a usable command: each stage that was not
+    /// healthy then and its reason (numbers as `#`), or that the answer was
+    /// for an older frame; counted per frame.
+    pub late_reasons: BTreeMap<String, u64>,
+    /// The driven track and where each intervention happened
+    /// (`farsight_sim::episode::Episode`).
+    pub track: Vec<[f64; 2]>,
+    pub intervention_points: Vec<[f64; 2]>,
+    /// Where frames went without a usable command (a point at most every
+    /// 0.25 m).
+    pub no_command_points: Vec<[f64; 2]>,
 }
 
 /// The graph's nodes in one executor. Every node must have an in-process
@@ -56,6 +68,8 @@ pub fn drive(graph: &Graph, options: &SimOptions, trace: Option<&Path>) -> Resul
     let mut trace = trace.map(PoseLog::create).transpose()?;
     ex.publish(topics::goal().name(), Message::Goal(sim.goal()));
     let (mut frames, mut late) = (0u64, 0u64);
+    let mut late_reasons = BTreeMap::new();
+    let mut no_command_points: Vec<[f64; 2]> = Vec::new();
     loop {
         let stamp = sim.next_stamp(None);
         let wanted = |t: &str| ex.is_read(t);
@@ -65,14 +79,29 @@ pub fn drive(graph: &Graph, options: &SimOptions, trace: Option<&Path>) -> Resul
         ex.run(stamp.capture_time_ns);
         // Lock-step, as `farsight-sim run` waits: the first command that
         // answers this frame.
-        let command = ex.take_sent().into_iter().find_map(|(t, m)| {
-            let c = VelocityCommand::try_from(m).ok()?;
-            (t == topics::velocity_command().name() && c.stamp.frame_seq >= stamp.frame_seq)
-                .then_some(c)
-        });
+        let answers: Vec<VelocityCommand> = ex
+            .take_sent()
+            .into_iter()
+            .filter(|(t, _)| t == topics::velocity_command().name())
+            .filter_map(|(_, m)| VelocityCommand::try_from(m).ok())
+            .collect();
+        let command = answers
+            .iter()
+            .find(|c| c.stamp.frame_seq >= stamp.frame_seq)
+            .copied();
         frames += 1;
+        let here = [sim.episode.robot.x_m, sim.episode.robot.y_m];
         let (fresh, outcome) = sim.drive(command);
-        late += u64::from(!fresh);
+        if !fresh {
+            late += 1;
+            let last = no_command_points.last();
+            if last.is_none_or(|p| (p[0] - here[0]).hypot(p[1] - here[1]) >= 0.25) {
+                no_command_points.push(here);
+            }
+            for why in late_why(&ex, command.is_some(), !answers.is_empty()) {
+                *late_reasons.entry(why).or_insert(0) += 1;
+            }
+        }
         if let Some(t) = &mut trace {
             t.record(&sim.episode)?;
         }
@@ -88,7 +117,43 @@ pub fn drive(graph: &Graph, options: &SimOptions, trace: Option<&Path>) -> Resul
         frames,
         late,
         stage_steps: ex.steps,
+        late_reasons,
+        track: sim.episode.track.clone(),
+        intervention_points: sim.episode.intervention_points.clone(),
+        no_command_points,
     })
+}
+
+/// Why a frame got no usable command: a command that was not finite, one
+/// answering an older frame, or else each unhealthy stage's reason, its
+/// numbers replaced by `#` so that reasons counting up tally as one.
+fn late_why(ex: &Executor, answered: bool, any_command: bool) -> Vec<String> {
+    if answered {
+        return vec!["a command that is not finite".into()];
+    }
+    if any_command {
+        return vec!["a command answering an older frame".into()];
+    }
+    let mut out: Vec<String> = ex
+        .health()
+        .filter(|(_, h)| h.state() != HealthState::OK)
+        .map(|(instance, h)| {
+            let mut why = format!("{instance}: ");
+            let mut digits = false;
+            for ch in h.report().reason.as_str().chars() {
+                let d = ch.is_ascii_digit() || (digits && ch == '.');
+                if !(d && digits) {
+                    why.push(if d { '#' } else { ch });
+                }
+                digits = d;
+            }
+            why
+        })
+        .collect();
+    if out.is_empty() {
+        out.push("no command, every stage healthy".into());
+    }
+    out
 }
 
 fn writes_command(graph: &Graph) -> bool {

@@ -22,6 +22,7 @@ mod bench_inference;
 mod bench_nav;
 mod bench_navigation;
 mod bench_planning;
+mod bench_record;
 mod bench_recorder;
 mod chaos;
 mod dataset;

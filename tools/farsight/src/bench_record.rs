@@ -1,0 +1,712 @@
+//! Results files of `farsight bench nav`, so that what a number was measured
+//! under is decided before it is measured and travels with it (issue 20,
+//! item 7). No paper protocol is implemented here; this is the yardstick's
+//! bookkeeping for all of them (FITAM section V, LRN section IV, POVNav
+//! section 5 and HIP section V each fix their trials before running them).
+//!
+//! - The [`Protocol`]: the world generator's, intervention rule's and
+//!   time-limit rule's versions, the trial parameters (scenarios, trials per
+//!   cell, the time-limit factor and cap) and each method's graph file with
+//!   the SHA-256 of its bytes. Its [`Protocol::hash`] goes into every file.
+//! - The trial list ([`Protocol::trial_list`]: scenario x method x seed, in
+//!   the order an unsharded run drives them) and [`Shard`]s of it (`--shard
+//!   K/N`: trial i belongs to shard (i mod N) + 1, so every shard gets a mix
+//!   of scenarios and methods and the split needs nothing but the
+//!   arguments).
+//! - [`ResultsFile`] (`--out FILE.json`): the commit, the protocol and its
+//!   hash, the shard, and a [`TrialRecord`] per trial.
+//! - [`merge`] (`farsight bench nav-merge`): shard files into one, refused
+//!   when any file differs from the first in its commit, a version, any
+//!   trial parameter or the hash (the error names the file and the field),
+//!   or when a trial is missing, duplicated or not in the protocol.
+//! - The table ([`header`], [`TABLE_HEAD`], [`row`]): the same lines for a
+//!   run and for a merge of its shards.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use std::collections::BTreeMap;
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+/// Version of the results file's layout.
+pub const RESULTS_FORMAT: u32 = 1;
+
+/// The versions of the rules a result depends on.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Versions {
+    /// `farsight_sim::scenario::WORLD_GENERATOR_VERSION`.
+    pub world_generator: u32,
+    /// `farsight_sim::episode::INTERVENTION_RULE_VERSION`.
+    pub intervention_rule: u32,
+    /// `farsight_sim::expert::TIME_LIMIT_RULE_VERSION`.
+    pub time_limit_rule: u32,
+}
+
+impl Versions {
+    /// This build's versions.
+    pub fn current() -> Self {
+        Self {
+            world_generator: farsight_sim::scenario::WORLD_GENERATOR_VERSION,
+            intervention_rule: farsight_sim::episode::INTERVENTION_RULE_VERSION,
+            time_limit_rule: farsight_sim::expert::TIME_LIMIT_RULE_VERSION,
+        }
+    }
+}
+
+/// A row of the benchmark: its name, graph file and the file's SHA-256.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MethodGraph {
+    pub name: String,
+    pub graph: String,
+    pub sha256: String,
+}
+
+impl MethodGraph {
+    /// `name` running the graph file at `path` (recorded as `shown`).
+    pub fn read(name: &str, shown: &str, path: &Path) -> Result<Self> {
+        let bytes = std::fs::read(path)
+            .with_context(|| format!("reading {} to hash it", path.display()))?;
+        Ok(Self {
+            name: name.to_string(),
+            graph: shown.to_string(),
+            sha256: sha256_hex(&bytes),
+        })
+    }
+}
+
+/// Everything decided before a trial is run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Protocol {
+    pub versions: Versions,
+    pub scenarios: Vec<String>,
+    /// Seeds 1..=trials per scenario and method.
+    pub trials: usize,
+    /// A trial's limit is this many times the expert's time...
+    pub time_limit_x: f64,
+    /// ...and at most this (s), if given.
+    pub max_time_s: Option<f64>,
+    pub methods: Vec<MethodGraph>,
+}
+
+/// One trial of the list: scenario, method (row name) and seed.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct TrialKey {
+    pub scenario: String,
+    pub method: String,
+    pub seed: u64,
+}
+
+impl fmt::Display for TrialKey {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} {} seed {}", self.scenario, self.method, self.seed)
+    }
+}
+
+impl Protocol {
+    /// SHA-256 (hex) of the protocol's JSON: fields in their declared
+    /// order, floats in their shortest round-trip form, so the same
+    /// protocol hashes the same on any machine.
+    pub fn hash(&self) -> String {
+        sha256_hex(&serde_json::to_vec(self).expect("a protocol serialises"))
+    }
+
+    /// Every trial, in the order an unsharded run drives them: per
+    /// scenario, per method, seeds 1..=trials.
+    pub fn trial_list(&self) -> Vec<TrialKey> {
+        let mut out = Vec::new();
+        for s in &self.scenarios {
+            for m in &self.methods {
+                for seed in 1..=self.trials as u64 {
+                    out.push(TrialKey {
+                        scenario: s.clone(),
+                        method: m.name.clone(),
+                        seed,
+                    });
+                }
+            }
+        }
+        out
+    }
+}
+
+fn sha256_hex(bytes: &[u8]) -> String {
+    format!("{:x}", Sha256::digest(bytes))
+}
+
+/// `--shard K/N`: the K-th of N parts of the trial list (K from 1 to N).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    pub index: usize,
+    pub count: usize,
+}
+
+impl Shard {
+    /// The whole list.
+    pub const ALL: Shard = Shard { index: 1, count: 1 };
+
+    /// Whether trial `i` (0-based, in [`Protocol::trial_list`]'s order) is
+    /// this shard's.
+    pub fn holds(&self, i: usize) -> bool {
+        i % self.count == self.index - 1
+    }
+}
+
+impl fmt::Display for Shard {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+impl FromStr for Shard {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bad = || format!("shard {s:?}: expected K/N with 1 <= K <= N, e.g. 2/8");
+        let (k, n) = s.split_once('/').ok_or_else(bad)?;
+        let (index, count): (usize, usize) = (
+            k.trim().parse().map_err(|_| bad())?,
+            n.trim().parse().map_err(|_| bad())?,
+        );
+        if count == 0 || index == 0 || index > count {
+            return Err(bad());
+        }
+        Ok(Self { index, count })
+    }
+}
+
+/// One trial's result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrialRecord {
+    pub scenario: String,
+    pub method: String,
+    pub seed: u64,
+    /// `reached` or `timed_out`.
+    pub outcome: String,
+    pub time_s: f64,
+    pub distance_m: f64,
+    pub traversal_cost_s: f64,
+    pub collisions: u32,
+    pub interventions: u32,
+    pub final_goal_distance_m: f64,
+    /// The expert's time on the same world, start and goal (`None`: no
+    /// expert path).
+    pub expert_time_s: Option<f64>,
+    /// The limit this trial ran under.
+    pub time_limit_s: f64,
+    pub frames: u64,
+    pub frames_without_command: u64,
+}
+
+impl TrialRecord {
+    pub fn key(&self) -> TrialKey {
+        TrialKey {
+            scenario: self.scenario.clone(),
+            method: self.method.clone(),
+            seed: self.seed,
+        }
+    }
+
+    pub fn reached(&self) -> bool {
+        self.outcome == "reached"
+    }
+}
+
+/// A results file: one run, or one shard of it, or shards merged.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ResultsFile {
+    pub format: u32,
+    /// `git rev-parse HEAD` where the run was built from, or "unknown".
+    pub commit: String,
+    /// Whether the work tree had changes to tracked files (`git status`).
+    pub dirty: bool,
+    pub protocol: Protocol,
+    pub protocol_hash: String,
+    /// `K/N`, or `merged 1..N/N`.
+    pub shard: String,
+    pub trials: Vec<TrialRecord>,
+}
+
+/// The commit this run is of, and whether tracked files differ from it.
+pub fn git_commit() -> (String, bool) {
+    let git = |args: &[&str]| {
+        std::process::Command::new("git")
+            .args(args)
+            .output()
+            .ok()
+            .filter(|o| o.status.success())
+            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+    };
+    match git(&["rev-parse", "HEAD"]) {
+        Some(c) if !c.is_empty() => {
+            let dirty = git(&["status", "--porcelain", "--untracked-files=no"])
+                .is_some_and(|s| !s.is_empty());
+            (c, dirty)
+        }
+        _ => ("unknown".into(), false),
+    }
+}
+
+/// `farsight bench nav-merge`.
+#[derive(Args)]
+pub struct NavMergeArgs {
+    /// Results files of the shards (`farsight bench nav --shard K/N --out
+    /// FILE.json`).
+    #[arg(required = true)]
+    pub files: Vec<PathBuf>,
+    /// Write the merged results here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Reads, merges and prints the table of shard files.
+pub fn run_merge(a: NavMergeArgs) -> Result<()> {
+    let files = a
+        .files
+        .iter()
+        .map(|p| Ok((p.clone(), read(p)?)))
+        .collect::<Result<Vec<_>>>()?;
+    let merged = merge(&files)?;
+    print!("{}", table(&merged));
+    if let Some(out) = &a.out {
+        write(out, &merged)?;
+    }
+    Ok(())
+}
+
+pub fn read(path: &Path) -> Result<ResultsFile> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{}: not a results file", path.display()))
+}
+
+pub fn write(path: &Path, file: &ResultsFile) -> Result<()> {
+    let text = serde_json::to_string_pretty(file)?;
+    std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))
+}
+
+/// Shard files into one. Every file must agree with the first on the
+/// format, commit, versions, trial parameters, graph hashes and protocol
+/// hash, and have the same shard count; together they must hold each trial
+/// of the protocol's list exactly once. Trials come out in the list's order.
+pub fn merge(files: &[(PathBuf, ResultsFile)]) -> Result<ResultsFile> {
+    let Some((first_path, first)) = files.first() else {
+        bail!("no results files to merge");
+    };
+    let shard_of = |path: &Path, f: &ResultsFile| -> Result<Shard> {
+        f.shard
+            .parse()
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    };
+    let count = shard_of(first_path, first)?.count;
+    for (path, f) in files {
+        let p = (&f.protocol, &first.protocol);
+        let fields: [(&str, String, String); 10] = [
+            ("format", f.format.to_string(), first.format.to_string()),
+            ("commit", f.commit.clone(), first.commit.clone()),
+            (
+                "protocol.versions.world_generator",
+                p.0.versions.world_generator.to_string(),
+                p.1.versions.world_generator.to_string(),
+            ),
+            (
+                "protocol.versions.intervention_rule",
+                p.0.versions.intervention_rule.to_string(),
+                p.1.versions.intervention_rule.to_string(),
+            ),
+            (
+                "protocol.versions.time_limit_rule",
+                p.0.versions.time_limit_rule.to_string(),
+                p.1.versions.time_limit_rule.to_string(),
+            ),
+            (
+                "protocol.scenarios",
+                format!("{:?}", p.0.scenarios),
+                format!("{:?}", p.1.scenarios),
+            ),
+            (
+                "protocol.trials",
+                p.0.trials.to_string(),
+                p.1.trials.to_string(),
+            ),
+            (
+                "protocol.time_limit_x / max_time_s",
+                format!("{} / {:?}", p.0.time_limit_x, p.0.max_time_s),
+                format!("{} / {:?}", p.1.time_limit_x, p.1.max_time_s),
+            ),
+            (
+                "protocol.methods (names, graphs, graph hashes)",
+                format!("{:?}", p.0.methods),
+                format!("{:?}", p.1.methods),
+            ),
+            (
+                "protocol_hash",
+                f.protocol_hash.clone(),
+                first.protocol_hash.clone(),
+            ),
+        ];
+        for (field, this, want) in fields {
+            if this != want {
+                bail!(
+                    "{}: {field} is {this}, but {} has {want}: results measured under different code or protocols are not merged",
+                    path.display(),
+                    first_path.display()
+                );
+            }
+        }
+        let shard = shard_of(path, f)?;
+        if shard.count != count {
+            bail!(
+                "{}: shard {shard}, but {} is a shard of {count}",
+                path.display(),
+                first_path.display()
+            );
+        }
+    }
+    let list = first.protocol.trial_list();
+    let mut found: BTreeMap<TrialKey, (&Path, &TrialRecord)> = BTreeMap::new();
+    for (path, f) in files {
+        for t in &f.trials {
+            let key = t.key();
+            if let Some((other, _)) = found.get(&key) {
+                bail!(
+                    "trial {key} is in both {} and {}",
+                    other.display(),
+                    path.display()
+                );
+            }
+            if !list.contains(&key) {
+                bail!(
+                    "{}: trial {key} is not in the protocol's trial list",
+                    path.display()
+                );
+            }
+            found.insert(key, (path, t));
+        }
+    }
+    let missing: Vec<String> = list
+        .iter()
+        .filter(|k| !found.contains_key(k))
+        .map(|k| k.to_string())
+        .collect();
+    if !missing.is_empty() {
+        bail!(
+            "{} of {} trials are in none of the files (a shard missing?): {}{}",
+            missing.len(),
+            list.len(),
+            missing[..missing.len().min(5)].join(", "),
+            if missing.len() > 5 { ", ..." } else { "" }
+        );
+    }
+    Ok(ResultsFile {
+        shard: format!("merged from {} files of {count} shards", files.len()),
+        trials: list.iter().map(|k| found[k].1.clone()).collect(),
+        dirty: files.iter().any(|(_, f)| f.dirty),
+        ..first.clone()
+    })
+}
+
+/// The table's first lines: what was measured, under which rules.
+pub fn header(f: &ResultsFile) -> String {
+    let p = &f.protocol;
+    let cap = p
+        .max_time_s
+        .map_or(String::new(), |c| format!(", at most {c:.0} s"));
+    format!(
+        "navigation benchmark: {} seeded trials per cell, each limited to {}x the expert's time on its world{cap}, the shipped graphs in one process\nprotocol {} (world generator v{}, intervention rule v{}, time-limit rule v{}), commit {}{}\n",
+        p.trials,
+        p.time_limit_x,
+        &f.protocol_hash[..16.min(f.protocol_hash.len())],
+        p.versions.world_generator,
+        p.versions.intervention_rule,
+        p.versions.time_limit_rule,
+        f.commit,
+        if f.dirty { " (with uncommitted changes)" } else { "" },
+    )
+}
+
+pub const TABLE_HEAD: &str = "| scenario | method | success [95% CI] | path m | time s | cost s | time / expert | interventions |\n|---|---|---|---|---|---|---|---|\n";
+
+/// A cell's row: success rate with a 95% Wilson interval; path length,
+/// time, traversal cost and time relative to the expert over the
+/// successful trials; interventions over all (means with 95% normal
+/// intervals).
+pub fn row(scenario: &str, method: &str, runs: &[&TrialRecord]) -> String {
+    let ok: Vec<&&TrialRecord> = runs.iter().filter(|t| t.reached()).collect();
+    let (lo, hi) = wilson(ok.len(), runs.len());
+    let pick = |f: fn(&TrialRecord) -> Option<f64>| -> Vec<f64> {
+        ok.iter().filter_map(|t| f(t)).collect()
+    };
+    format!(
+        "| {scenario} | {method} | {:.0}% [{:.0}, {:.0}] | {} | {} | {} | {} | {} |\n",
+        100.0 * ok.len() as f64 / runs.len().max(1) as f64,
+        100.0 * lo,
+        100.0 * hi,
+        mean_ci(&pick(|t| Some(t.distance_m)), 0),
+        mean_ci(&pick(|t| Some(t.time_s)), 0),
+        mean_ci(&pick(|t| Some(t.traversal_cost_s)), 0),
+        mean_ci(&pick(|t| t.expert_time_s.map(|e| t.time_s / e)), 2),
+        mean_ci(
+            &runs
+                .iter()
+                .map(|t| t.interventions as f64)
+                .collect::<Vec<_>>(),
+            0
+        ),
+    )
+}
+
+/// The whole table of a file: header, then a row per scenario and method
+/// with trials, in the protocol's order.
+pub fn table(f: &ResultsFile) -> String {
+    let mut out = header(f) + "\n" + TABLE_HEAD;
+    for s in &f.protocol.scenarios {
+        for m in &f.protocol.methods {
+            let runs: Vec<&TrialRecord> = f
+                .trials
+                .iter()
+                .filter(|t| &t.scenario == s && t.method == m.name)
+                .collect();
+            if !runs.is_empty() {
+                out += &row(s, &m.name, &runs);
+            }
+        }
+    }
+    out
+}
+
+pub fn wilson(successes: usize, n: usize) -> (f64, f64) {
+    if n == 0 {
+        return (0.0, 0.0);
+    }
+    let (z, n_f) = (1.96f64, n as f64);
+    let p = successes as f64 / n_f;
+    let denom = 1.0 + z * z / n_f;
+    let centre = (p + z * z / (2.0 * n_f)) / denom;
+    let half = z * (p * (1.0 - p) / n_f + z * z / (4.0 * n_f * n_f)).sqrt() / denom;
+    ((centre - half).max(0.0), (centre + half).min(1.0))
+}
+
+fn mean_ci(v: &[f64], decimals: usize) -> String {
+    if v.is_empty() {
+        return "-".into();
+    }
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    if v.len() < 2 {
+        return format!("{mean:.decimals$}");
+    }
+    let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    format!("{mean:.decimals$} ± {:.decimals$}", 1.96 * sd / n.sqrt())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn protocol() -> Protocol {
+        Protocol {
+            versions: Versions::current(),
+            scenarios: vec!["bug-trap".into(), "bridge".into()],
+            trials: 3,
+            time_limit_x: 3.0,
+            max_time_s: None,
+            methods: vec![
+                MethodGraph {
+                    name: "a".into(),
+                    graph: "graphs/sim/a.toml".into(),
+                    sha256: "aa".into(),
+                },
+                MethodGraph {
+                    name: "b".into(),
+                    graph: "graphs/sim/b.toml".into(),
+                    sha256: "bb".into(),
+                },
+            ],
+        }
+    }
+
+    /// A made-up result per trial: every third fails, numbers vary by key.
+    fn record(k: &TrialKey) -> TrialRecord {
+        let x = k.seed as f64 + k.scenario.len() as f64 + 10.0 * k.method.len() as f64;
+        TrialRecord {
+            scenario: k.scenario.clone(),
+            method: k.method.clone(),
+            seed: k.seed,
+            outcome: if k.seed.is_multiple_of(3) {
+                "timed_out"
+            } else {
+                "reached"
+            }
+            .into(),
+            time_s: 40.0 + 7.0 * x,
+            distance_m: 60.0 + x,
+            traversal_cost_s: 30.0 + 3.0 * x,
+            collisions: 0,
+            interventions: (k.seed % 2) as u32,
+            final_goal_distance_m: 1.0,
+            expert_time_s: Some(35.0),
+            time_limit_s: 105.0,
+            frames: 400,
+            frames_without_command: 0,
+        }
+    }
+
+    /// What a run of `shard` writes.
+    fn shard_file(shard: Shard) -> ResultsFile {
+        let p = protocol();
+        ResultsFile {
+            format: RESULTS_FORMAT,
+            commit: "abc".into(),
+            dirty: false,
+            protocol_hash: p.hash(),
+            shard: shard.to_string(),
+            trials: p
+                .trial_list()
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| shard.holds(*i))
+                .map(|(_, k)| record(k))
+                .collect(),
+            protocol: p,
+        }
+    }
+
+    #[test]
+    fn shards_split_the_list_and_their_merge_prints_the_unsharded_table() {
+        let whole = shard_file(Shard::ALL);
+        assert_eq!(whole.trials.len(), 12);
+        let parts: Vec<(PathBuf, ResultsFile)> = (1..=3)
+            .map(|k| {
+                let s = Shard { index: k, count: 3 };
+                (PathBuf::from(format!("s{k}.json")), shard_file(s))
+            })
+            .collect();
+        let sizes: Vec<usize> = parts.iter().map(|(_, f)| f.trials.len()).collect();
+        assert_eq!(sizes, [4, 4, 4]);
+        // Every cell is spread over the shards, so no shard's rows are the table.
+        assert_ne!(table(&parts[0].1), table(&whole));
+        // In any order of the files.
+        let mut reversed = parts.clone();
+        reversed.reverse();
+        for files in [&parts, &reversed] {
+            let merged = merge(files).unwrap();
+            assert_eq!(merged.trials, whole.trials);
+            assert_eq!(table(&merged), table(&whole));
+        }
+        let t = table(&whole);
+        assert!(t.contains("| bug-trap | a | 67% [21, 94] |"), "{t}");
+        assert!(t.contains(&whole.protocol_hash[..16]), "{t}");
+    }
+
+    #[test]
+    fn a_merge_refuses_mixed_versions_hashes_commits_and_missing_or_doubled_trials() {
+        let part = |k| {
+            (
+                PathBuf::from(format!("s{k}.json")),
+                shard_file(Shard { index: k, count: 2 }),
+            )
+        };
+        let err = |files: &[(PathBuf, ResultsFile)]| merge(files).unwrap_err().to_string();
+
+        let mut newer = part(2);
+        newer.1.protocol.versions.intervention_rule += 1;
+        newer.1.protocol_hash = newer.1.protocol.hash();
+        let e = err(&[part(1), newer]);
+        assert!(
+            e.contains("s2.json") && e.contains("protocol.versions.intervention_rule"),
+            "{e}"
+        );
+
+        let mut edited = part(2);
+        edited.1.protocol_hash = "0123".into();
+        let e = err(&[part(1), edited]);
+        assert!(e.contains("s2.json") && e.contains("protocol_hash"), "{e}");
+
+        let mut other_commit = part(1);
+        other_commit.1.commit = "def".into();
+        let e = err(&[part(2), other_commit]);
+        assert!(e.contains("s1.json") && e.contains("commit is def"), "{e}");
+
+        let mut other_graph = part(2);
+        other_graph.1.protocol.methods[1].sha256 = "cc".into();
+        let e = err(&[part(1), other_graph]);
+        assert!(e.contains("protocol.methods"), "{e}");
+
+        let e = err(&[part(1)]);
+        assert!(e.contains("6 of 12 trials") && e.contains("seed"), "{e}");
+        let e = err(&[part(1), part(2), part(1)]);
+        assert!(e.contains("is in both s1.json and s1.json"), "{e}");
+
+        let mut of_three = part(2);
+        of_three.1.shard = "2/3".into();
+        let e = err(&[part(1), of_three]);
+        assert!(e.contains("shard 2/3"), "{e}");
+        assert!(merge(&[part(1), part(2)]).is_ok());
+    }
+
+    #[test]
+    fn shard_specs_parse_or_name_the_bad_value() {
+        assert_eq!("2/8".parse(), Ok(Shard { index: 2, count: 8 }));
+        for bad in ["0/4", "5/4", "1/0", "2", "a/b", ""] {
+            let e = bad.parse::<Shard>().unwrap_err();
+            assert!(e.contains(&format!("{bad:?}")), "{e}");
+        }
+        let s = Shard { index: 2, count: 3 };
+        let held: Vec<usize> = (0..9).filter(|&i| s.holds(i)).collect();
+        assert_eq!(held, [1, 4, 7]);
+    }
+
+    #[test]
+    fn the_protocol_hash_changes_with_every_parameter() {
+        let p = protocol();
+        let h = p.hash();
+        assert_eq!(h.len(), 64);
+        assert_eq!(h, protocol().hash(), "stable");
+        let changed = [
+            Protocol {
+                trials: 4,
+                ..p.clone()
+            },
+            Protocol {
+                time_limit_x: 2.0,
+                ..p.clone()
+            },
+            Protocol {
+                max_time_s: Some(600.0),
+                ..p.clone()
+            },
+            Protocol {
+                scenarios: vec!["bug-trap".into()],
+                ..p.clone()
+            },
+            Protocol {
+                versions: Versions {
+                    world_generator: p.versions.world_generator + 1,
+                    ..p.versions.clone()
+                },
+                ..p.clone()
+            },
+        ];
+        for c in changed {
+            assert_ne!(c.hash(), h, "{c:?}");
+        }
+        let mut g = p.clone();
+        g.methods[0].sha256 = "ab".into();
+        assert_ne!(g.hash(), h);
+    }
+
+    #[test]
+    fn wilson_interval_by_hand() {
+        let (lo, hi) = wilson(5, 10);
+        assert!(
+            (lo - 0.2366).abs() < 1e-3 && (hi - 0.7634).abs() < 1e-3,
+            "{lo} {hi}"
+        );
+        let (lo, hi) = wilson(0, 5);
+        assert_eq!(lo, 0.0);
+        assert!(hi > 0.4 && hi < 0.5);
+    }
+}
