@@ -18,6 +18,7 @@
 //! ```
 
 mod bench;
+mod bench_fitam;
 mod bench_inference;
 mod bench_nav;
 mod bench_navigation;

@@ -9,6 +9,7 @@
 //! - [`render`]: a column ray-marching camera renderer: RGB, depth, class ids;
 //! - [`robot`]: a unicycle with acceleration and terrain speed limits, collisions;
 //! - [`sensor`]: the occlusion-aware 25 m near-field costmap;
+//! - [`fitam_protocol`]: FITAM's kinematic sense-plan-act evaluation (section V);
 //! - [`episode`]: one drive: robot, metrics (reached, time, distance, cost,
 //!   collisions, interventions) and the map PNG with the track.
 //!
@@ -26,6 +27,7 @@
 
 pub mod episode;
 pub mod expert;
+pub mod fitam_protocol;
 pub mod labels;
 pub mod render;
 pub mod rng;

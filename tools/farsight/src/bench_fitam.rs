@@ -1,0 +1,357 @@
+//! `farsight bench fitam`: FITAM's simulated evaluation as its paper ran it
+//! (section V-A4, Table I), not the closed-loop drive of `farsight bench
+//! nav`: random land-cover worlds (5 x 5 km by default), start/goal problems
+//! at least 1 km apart, a kinematic sense-plan-act agent
+//! (`farsight_sim::fitam_protocol`) per row, and the paper's paired
+//! statistics against *No FF*: % of trials improved, average % cost
+//! difference, % failed (failures excluded from the pairing).
+//!
+//! The far-field filter's constants come from the shipped graph
+//! (`graphs/sim/fitam-gt.toml`'s costmap-fusion node), so the protocol
+//! plans on the map the graph would build. Rows: *No FF*, *GT FF* (labels
+//! from the true world over a full 360 degrees, as the paper's panoramas),
+//! *Perfect Vision* (local observations out to 100 m). The learned model's
+//! row needs a 360 degree camera rig the simulator does not render yet; it
+//! is not in this table.
+
+use crate::graph::Graph;
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use farsight_costmap_fusion::stage::FusionStageConfig;
+use farsight_sim::fitam_protocol::{
+    paired_against, sample_problems, sense_plan_act, MeanCi, ProtocolConfig, Row,
+};
+use farsight_sim::scenario::random_world;
+use std::io::Write;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+use std::time::Instant;
+
+#[derive(Args, Debug, Clone)]
+pub struct FitamArgs {
+    /// Random worlds (seeds 1..=N).
+    #[arg(long, default_value_t = 4)]
+    pub maps: usize,
+    /// Start/goal problems per world (the paper: 100).
+    #[arg(long, default_value_t = 25)]
+    pub problems_per_map: usize,
+    /// World side in metres (the paper: 5000).
+    #[arg(long, default_value_t = 5000)]
+    pub size_m: usize,
+    /// Least straight-line distance from start to goal (the paper: 1000 m).
+    #[arg(long, default_value_t = 1000.0)]
+    pub min_goal_m: f64,
+    /// Start and goal at least this far from the world's edge (100 m, as
+    /// the reference code).
+    #[arg(long, default_value_t = 100.0)]
+    pub edge_margin_m: f64,
+    /// Rows to run besides No FF (default: all).
+    #[arg(long, value_delimiter = ',')]
+    pub rows: Vec<String>,
+    /// Worker threads (default: the machine's cores). Each holds about
+    /// 1.3 GB on a 5 x 5 km world.
+    #[arg(long)]
+    pub jobs: Option<usize>,
+    /// The graph whose costmap-fusion config the map uses.
+    #[arg(long, default_value = "graphs/sim/fitam-gt.toml")]
+    pub graph: std::path::PathBuf,
+    /// Write one JSON line per trial (map, problem, row, outcome) here.
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
+}
+
+/// One trial's outcome, as written to `--out`.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize, PartialEq)]
+pub struct TrialLine {
+    pub map_seed: u64,
+    pub problem: usize,
+    pub row: String,
+    pub straight_line_m: f64,
+    pub oracle_cost_s: f64,
+    pub reached: bool,
+    pub cost_s: f64,
+    pub distance_m: f64,
+    pub iterations: usize,
+}
+
+/// The far-field filter constants of the graph's costmap-fusion node.
+fn protocol_config(graph_path: &std::path::Path) -> Result<ProtocolConfig> {
+    let path = if graph_path.is_relative() && !graph_path.exists() {
+        crate::graph::repo_file(&graph_path.to_string_lossy())?
+    } else {
+        graph_path.to_path_buf()
+    };
+    let graph = Graph::load(&path)?;
+    let Some(node) = graph
+        .nodes
+        .iter()
+        .find(|n| n.spec.stage == "costmap-fusion")
+    else {
+        bail!(
+            "{}: no costmap-fusion node, so no far-field filter to evaluate",
+            path.display()
+        );
+    };
+    let fusion: FusionStageConfig = match &node.config_text {
+        Some(text) => farsight_stage::parse_config(text, &node.config_origin)?,
+        None => FusionStageConfig::default(),
+    };
+    Ok(ProtocolConfig {
+        far_field: fusion.far_field,
+        ..ProtocolConfig::default()
+    })
+}
+
+fn rows(names: &[String]) -> Result<Vec<Row>> {
+    let mut out = vec![Row::NoFarField];
+    if names.is_empty() {
+        out.extend(Row::ALL.into_iter().filter(|r| *r != Row::NoFarField));
+        return Ok(out);
+    }
+    for n in names {
+        let Some(r) = Row::from_name(n) else {
+            let known: Vec<&str> = Row::ALL.iter().map(|r| r.name()).collect();
+            bail!("unknown row {n:?}; known: {}", known.join(", "));
+        };
+        if !out.contains(&r) {
+            out.push(r);
+        }
+    }
+    Ok(out)
+}
+
+/// The paper's numbers (Table I) beside ours.
+fn paper(row: Row) -> &'static str {
+    match row {
+        Row::NoFarField => "failed 0.71%",
+        Row::GroundTruthFarField => "92.5 ± 0.4 / 19.2 ± 0.3 / 0.72",
+        Row::PerfectVision => "95.7 ± 0.3 / 24.7 ± 0.3 / 0.33",
+    }
+}
+
+fn ci(m: Option<MeanCi>) -> String {
+    match m {
+        None => "-".into(),
+        Some(m) if m.half_width.is_nan() => format!("{:.1}", m.mean),
+        Some(m) => format!("{:.1} ± {:.1}", m.mean, m.half_width),
+    }
+}
+
+/// The table of Table I's statistics from trial lines (any order).
+pub fn table(lines: &[TrialLine], rows: &[Row]) -> String {
+    use std::collections::BTreeMap;
+    // Problem key -> row -> cost (None = failed).
+    let mut by_problem: BTreeMap<(u64, usize), BTreeMap<&str, Option<f64>>> = BTreeMap::new();
+    let mut oracle: BTreeMap<(u64, usize), f64> = BTreeMap::new();
+    for l in lines {
+        by_problem
+            .entry((l.map_seed, l.problem))
+            .or_default()
+            .insert(l.row.as_str(), l.reached.then_some(l.cost_s));
+        oracle.insert((l.map_seed, l.problem), l.oracle_cost_s);
+    }
+    let column = |row: Row| -> Vec<Option<f64>> {
+        by_problem
+            .values()
+            .map(|m| m.get(row.name()).copied().flatten())
+            .collect()
+    };
+    let base = column(Row::NoFarField);
+    let mut out = String::from(
+        "| row | trials | % trials improved | avg % diff | % failed | cost / oracle | paper: improved / diff / failed |\n|---|---|---|---|---|---|---|\n",
+    );
+    for &row in rows {
+        let costs = column(row);
+        let stats = paired_against(&base, &costs);
+        let over_oracle: Vec<f64> = by_problem
+            .iter()
+            .zip(&costs)
+            .filter_map(|((k, _), c)| c.map(|c| c / oracle[k]))
+            .collect();
+        let (improved, diff) = if row == Row::NoFarField {
+            ("-".to_string(), "-".to_string())
+        } else {
+            (ci(stats.trials_improved_pct), ci(stats.avg_diff_pct))
+        };
+        out += &format!(
+            "| {} | {} | {improved} | {diff} | {:.2} | {} | {} |\n",
+            row.name(),
+            costs.len(),
+            stats.failed_pct,
+            MeanCi::of(&over_oracle).map_or("-".into(), |m| format!("{:.2}", m.mean)),
+            paper(row),
+        );
+    }
+    out
+}
+
+pub fn run(a: FitamArgs) -> Result<()> {
+    let cfg = protocol_config(&a.graph)?;
+    let rows = rows(&a.rows)?;
+    if a.maps == 0 || a.problems_per_map == 0 {
+        bail!("--maps and --problems-per-map must be at least 1");
+    }
+    if a.size_m < 50 || a.size_m > 5000 {
+        bail!("--size-m {} is outside 50..=5000", a.size_m);
+    }
+    let jobs = a
+        .jobs
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
+        .clamp(1, a.maps);
+    let mut out = match &a.out {
+        Some(p) => Some(std::io::BufWriter::new(
+            std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?,
+        )),
+        None => None,
+    };
+    println!(
+        "FITAM protocol (section V-A4): {} worlds of {} m, {} problems each (start/goal >= {} m apart), rows {}, {jobs} threads (one run, this machine):\n",
+        a.maps,
+        a.size_m,
+        a.problems_per_map,
+        a.min_goal_m,
+        rows.iter().map(|r| r.name()).collect::<Vec<_>>().join(", ")
+    );
+    let t0 = Instant::now();
+    let next = AtomicUsize::new(0);
+    let lines: Mutex<Vec<TrialLine>> = Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for _ in 0..jobs {
+            s.spawn(|| loop {
+                let k = next.fetch_add(1, Ordering::Relaxed);
+                if k >= a.maps {
+                    return;
+                }
+                let seed = k as u64 + 1;
+                let world = random_world(seed, a.size_m).world;
+                let problems =
+                    sample_problems(&world, a.problems_per_map, a.min_goal_m, a.edge_margin_m, seed);
+                if problems.len() < a.problems_per_map {
+                    eprintln!(
+                        "  world {seed}: only {} problems >= {} m apart",
+                        problems.len(),
+                        a.min_goal_m
+                    );
+                }
+                for (i, p) in problems.iter().enumerate() {
+                    let mut mine = Vec::new();
+                    for &row in &rows {
+                        let t = Instant::now();
+                        let r = sense_plan_act(&world, p, row, &cfg);
+                        eprintln!(
+                            "  world {seed} problem {i} {}: {} cost {:.0} s ({:.2} x oracle), {:.0} m, {} iterations, {:.1} s",
+                            row.name(),
+                            if r.reached { "reached" } else { "FAILED" },
+                            r.cost_s,
+                            r.cost_s / p.oracle_cost_s,
+                            r.distance_m,
+                            r.iterations,
+                            t.elapsed().as_secs_f64()
+                        );
+                        mine.push(TrialLine {
+                            map_seed: seed,
+                            problem: i,
+                            row: row.name().into(),
+                            straight_line_m: p.straight_line_m(world.resolution_m),
+                            oracle_cost_s: p.oracle_cost_s,
+                            reached: r.reached,
+                            cost_s: r.cost_s,
+                            distance_m: r.distance_m,
+                            iterations: r.iterations,
+                        });
+                    }
+                    lines.lock().expect("no panics hold it").extend(mine);
+                }
+            });
+        }
+    });
+    let mut lines = lines.into_inner().expect("no panics hold it");
+    lines.sort_by(|a, b| (a.map_seed, a.problem, &a.row).cmp(&(b.map_seed, b.problem, &b.row)));
+    if let Some(w) = &mut out {
+        for l in &lines {
+            serde_json::to_writer(&mut *w, l)?;
+            writeln!(w)?;
+        }
+        w.flush()?;
+    }
+    print!("{}", table(&lines, &rows));
+    println!(
+        "\n{} trials in {:.0} s. Paired over the problems both No FF and the row reached; ± is the 95% interval (1.96 standard errors), as Table I.",
+        lines.len(),
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn line(map_seed: u64, problem: usize, row: Row, cost: Option<f64>) -> TrialLine {
+        TrialLine {
+            map_seed,
+            problem,
+            row: row.name().into(),
+            straight_line_m: 1000.0,
+            oracle_cost_s: 100.0,
+            reached: cost.is_some(),
+            cost_s: cost.unwrap_or(9999.0),
+            distance_m: 1000.0,
+            iterations: 10,
+        }
+    }
+
+    #[test]
+    fn the_table_pairs_by_problem_and_reports_failures_apart() {
+        let rows = [Row::NoFarField, Row::GroundTruthFarField];
+        let lines = vec![
+            line(1, 0, Row::GroundTruthFarField, Some(150.0)),
+            line(1, 0, Row::NoFarField, Some(200.0)),
+            line(1, 1, Row::NoFarField, Some(300.0)),
+            line(1, 1, Row::GroundTruthFarField, Some(300.0)),
+            line(2, 0, Row::NoFarField, Some(400.0)),
+            line(2, 0, Row::GroundTruthFarField, None),
+        ];
+        let t = table(&lines, &rows);
+        let gt = t.lines().find(|l| l.starts_with("| gt_far_field")).unwrap();
+        // Paired: problems (1,0) and (1,1): improved 1 of 2; diffs 25% and 0%.
+        assert!(gt.contains("| 50.0 ± 98.0 | 12.5 ± 24.5 | 33.33 |"), "{gt}");
+        let noff = t.lines().find(|l| l.starts_with("| no_far_field")).unwrap();
+        assert!(noff.contains("| 0.00 | 3.00 |"), "{noff}");
+    }
+
+    #[test]
+    fn rows_are_named_and_checked() {
+        assert_eq!(rows(&[]).unwrap().len(), 3);
+        assert_eq!(
+            rows(&["perfect_vision".into()]).unwrap(),
+            vec![Row::NoFarField, Row::PerfectVision]
+        );
+        let e = rows(&["gt".into()]).unwrap_err().to_string();
+        assert!(e.contains("\"gt\"") && e.contains("gt_far_field"), "{e}");
+    }
+
+    #[test]
+    fn the_far_field_filter_is_the_graphs() {
+        let shipped = crate::graph::repo_file("graphs/sim/fitam-gt.toml").unwrap();
+        let cfg = protocol_config(&shipped).unwrap();
+        assert_eq!(cfg.far_field, FusionStageConfig::default().far_field);
+        // The same graph with its fusion node's process noise changed: the
+        // protocol plans with the changed filter.
+        let text = std::fs::read_to_string(&shipped).unwrap();
+        let changed = text.replacen(
+            "[[node]]\nname = \"subgoal-selection\"",
+            "[node.config.far_field]\nprocess_noise = 0.005\n\n[[node]]\nname = \"subgoal-selection\"",
+            1,
+        );
+        assert_ne!(changed, text, "the shipped graph's layout changed");
+        let dir = std::env::temp_dir().join(format!("farsight-bench-fitam-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("fitam-gt.toml");
+        std::fs::write(&path, changed).unwrap();
+        let cfg = protocol_config(&path).unwrap();
+        std::fs::remove_dir_all(&dir).ok();
+        assert_eq!(cfg.far_field.process_noise, 0.005);
+        assert_eq!((cfg.max_iterations, cfg.max_travel_m), (1000, 20.0));
+    }
+}
