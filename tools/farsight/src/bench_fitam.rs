@@ -185,15 +185,29 @@ pub fn table(lines: &[TrialLine], rows: &[Row]) -> String {
     out
 }
 
-pub fn run(a: FitamArgs) -> Result<()> {
-    let cfg = protocol_config(&a.graph)?;
-    let rows = rows(&a.rows)?;
+/// Refuses arguments that would sample nothing or everything, naming the flag.
+fn check_args(a: &FitamArgs) -> Result<()> {
     if a.maps == 0 || a.problems_per_map == 0 {
         bail!("--maps and --problems-per-map must be at least 1");
     }
     if a.size_m < 50 || a.size_m > 5000 {
         bail!("--size-m {} is outside 50..=5000", a.size_m);
     }
+    for (flag, v) in [
+        ("--min-goal-m", a.min_goal_m),
+        ("--edge-margin-m", a.edge_margin_m),
+    ] {
+        if !(v.is_finite() && v >= 0.0) {
+            bail!("{flag} {v} is not a finite distance >= 0 m");
+        }
+    }
+    Ok(())
+}
+
+pub fn run(a: FitamArgs) -> Result<()> {
+    check_args(&a)?;
+    let cfg = protocol_config(&a.graph)?;
+    let rows = rows(&a.rows)?;
     let jobs = a
         .jobs
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
@@ -318,6 +332,31 @@ mod tests {
         assert!(gt.contains("| 50.0 ± 98.0 | 12.5 ± 24.5 | 33.33 |"), "{gt}");
         let noff = t.lines().find(|l| l.starts_with("| no_far_field")).unwrap();
         assert!(noff.contains("| 0.00 | 3.00 |"), "{noff}");
+    }
+
+    #[test]
+    fn bad_arguments_are_refused_by_name() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            a: FitamArgs,
+        }
+        let parse = |args: &[&str]| Cli::try_parse_from([&["x"], args].concat()).unwrap().a;
+        assert!(check_args(&parse(&[])).is_ok());
+        let e = check_args(&parse(&["--min-goal-m", "nan"]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--min-goal-m NaN"), "{e}");
+        let e = check_args(&parse(&["--edge-margin-m=-5"]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--edge-margin-m -5"), "{e}");
+        let e = check_args(&parse(&["--size-m", "9000"]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--size-m 9000"), "{e}");
+        assert!(check_args(&parse(&["--maps", "0"])).is_err());
     }
 
     #[test]
