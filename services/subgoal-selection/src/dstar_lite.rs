@@ -4,7 +4,8 @@
 //!
 //! Moving from a cell into cell `v` costs `cost[v] * resolution` (times
 //! sqrt 2 on a diagonal), as the FITAM reference code; an infinite (or NaN)
-//! cost blocks the cell. The heuristic is the octile distance times the
+//! cost blocks the cell, and a diagonal step may not cut a blocked cell's
+//! corner. The heuristic is the octile distance times the
 //! cheapest cost per metre any cell can have, so it stays admissible.
 //!
 //! D* Lite searches backward from the goal. After the robot moves and cells
@@ -15,15 +16,18 @@
 //! use farsight_subgoal_selection::dstar_lite::{CostGrid, DStarLite};
 //!
 //! // 5x3 grid of 1 s/m cells with a wall in column 2 except row 0: the way
-//! // round is four diagonal steps, (0,2) (1,1) (2,0) (3,1) (4,2).
+//! // round passes (2,0) straight, as diagonals may not cut the wall's top
+//! // corners: two diagonal steps and four straight ones.
 //! let mut grid = CostGrid::new(5, 3, 1.0, 1.0);
 //! grid.set(2, 1, f32::INFINITY);
 //! grid.set(2, 2, f32::INFINITY);
 //! let mut planner = DStarLite::new(grid, (0, 2), (4, 2), 1.0);
 //! let cost = planner.compute().expect("a way around the wall");
-//! assert!((cost - 4.0 * 2f64.sqrt()).abs() < 1e-9);
-//! assert_eq!(planner.path(), vec![(0, 2), (1, 1), (2, 0), (3, 1), (4, 2)]);
-//! assert_eq!(planner.path().first(), Some(&(0, 2)));
+//! assert!((cost - (4.0 + 2.0 * 2f64.sqrt())).abs() < 1e-9);
+//! let path = planner.path();
+//! assert_eq!(path.first(), Some(&(0, 2)));
+//! assert!(path.windows(3).any(|w| w == [(1, 0), (2, 0), (3, 0)]));
+//! assert_eq!(path.last(), Some(&(4, 2)));
 //! ```
 
 use std::cmp::Ordering;
@@ -80,13 +84,18 @@ impl CostGrid {
     /// Cost of stepping from `a` into its neighbour `b` (seconds). Only the
     /// entered cell counts, as FITAM's code: a robot standing in a cell the
     /// map now calls lethal (an inflated margin, a late detection) can still
-    /// plan its way out.
+    /// plan its way out. A diagonal step past the corner of a blocked cell
+    /// is blocked: the robot's centre would run along the obstacle's corner,
+    /// and two diagonal trees would leave no gap at all.
     pub fn step_cost(&self, a: (usize, usize), b: (usize, usize)) -> f64 {
         let c = self.get(b.0, b.1);
         if Self::blocked(c) {
             return f64::INFINITY;
         }
         let diagonal = a.0 != b.0 && a.1 != b.1;
+        if diagonal && (self.is_blocked(a.0, b.1) || self.is_blocked(b.0, a.1)) {
+            return f64::INFINITY;
+        }
         c as f64 * self.resolution_m * if diagonal { SQRT2 } else { 1.0 }
     }
 
@@ -822,6 +831,25 @@ mod tests {
             repair * 5 < first,
             "repair expanded {repair}, first search {first}"
         );
+    }
+
+    #[test]
+    fn diagonal_steps_do_not_squeeze_between_diagonal_obstacles() {
+        // Trees at (1, 0) and (0, 1) touch at one corner: the step from
+        // (0, 0) to (1, 1) would pass through them, so (0, 0) is shut in.
+        let mut grid = CostGrid::new(3, 3, 1.0, 1.0);
+        grid.set(1, 0, f32::INFINITY);
+        grid.set(0, 1, f32::INFINITY);
+        assert_eq!(grid.step_cost((0, 0), (1, 1)), f64::INFINITY);
+        assert_eq!(grid.step_cost((1, 1), (0, 0)), f64::INFINITY);
+        assert_eq!(astar(&grid, (0, 0), (2, 2), 1.0), None);
+        let mut d = DStarLite::new(grid.clone(), (0, 0), (2, 2), 1.0);
+        assert_eq!(d.compute(), None);
+        // One tree gone: the way is open again, and the repair finds it.
+        d.set_costs([(1, 0, 1.0)]);
+        let cost = d.compute().expect("open past (1, 0)");
+        assert!((cost - (2.0 + SQRT2)).abs() < 1e-9, "{cost}");
+        assert!(d.path().contains(&(1, 0)), "{:?}", d.path());
     }
 
     #[test]

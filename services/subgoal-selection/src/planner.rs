@@ -33,12 +33,25 @@ pub struct WorldPlannerConfig {
     pub min_cost_s_per_m: f64,
     /// The largest grid side, cells (memory bound: g, rhs and cost per cell).
     pub max_side_cells: usize,
-    /// Lethal cells block every cell within this distance too (the robot's
-    /// radius plus a margin), so a path never scrapes past an obstacle or
-    /// cuts a lethal cell's corner. With 1 m cells, 1.5 blocks the eight
-    /// cells around each lethal one: enough for a 0.4 m robot whose carrot
-    /// tracking cuts the inside of turns.
+    /// Lethal cells block every cell within this distance too (centre to
+    /// centre): the robot's radius plus slack, where the robot's centre
+    /// cannot go. With 1 m cells anything under 1 m blocks only the lethal
+    /// cell itself: a neighbour's centre is 0.5 m from its edge, room for
+    /// the simulator's 0.4 m radius. Diagonal steps past a blocked cell's
+    /// corner are blocked by the planner itself.
+    pub inscribed_radius_m: f64,
+    /// Cells within this distance of a lethal cell cost at least
+    /// `inflation_cost_s_per_m`: allowed but dear, as Nav2's inflation layer
+    /// and the simulator's expert. The path keeps clear of obstacles where
+    /// open ground is near (carrot tracking cuts the inside of turns), yet
+    /// a forest whose gaps are only a cell wide stays passable. Blocking
+    /// this margin instead sealed goals in dense forest (issue 20: 68% of
+    /// forest cells blocked, "no path" while the true world was open).
     pub inflation_radius_m: f64,
+    /// The least cost of a cell within `inflation_radius_m` of a lethal
+    /// one (the expert's 4 s/m: a detour up to four times as long as the
+    /// squeeze is preferred).
+    pub inflation_cost_s_per_m: f32,
 }
 
 impl Default for WorldPlannerConfig {
@@ -49,7 +62,9 @@ impl Default for WorldPlannerConfig {
             unknown_cost_s_per_m: 1.0,
             min_cost_s_per_m: 0.2,
             max_side_cells: 4000,
+            inscribed_radius_m: 0.5,
             inflation_radius_m: 1.5,
+            inflation_cost_s_per_m: 4.0,
         }
     }
 }
@@ -75,10 +90,16 @@ impl Validate for WorldPlannerConfig {
             Range::between(10.0, 20_000.0),
         )
         .key(
+            "inscribed_radius_m",
+            self.inscribed_radius_m,
+            Range::between(0.0, 10.0).unit("m"),
+        )
+        .key(
             "inflation_radius_m",
             self.inflation_radius_m,
             Range::between(0.0, 10.0).unit("m"),
-        );
+        )
+        .key("inflation_cost_s_per_m", self.inflation_cost_s_per_m, cost);
     }
 }
 
@@ -101,8 +122,13 @@ pub struct WorldPlanner {
     base: Vec<f32>,
     /// Per cell: lethal base cells within the inflation radius.
     lethal_near: Vec<u16>,
-    /// Cell offsets within the inflation radius (the cell itself included).
-    disk: Vec<(i64, i64)>,
+    /// Per cell: lethal base cells within the inscribed radius; `None` when
+    /// that radius reaches no neighbour (a lethal cell blocks only itself).
+    lethal_inscribed: Option<Vec<u16>>,
+    /// Cell offsets within the inflation radius (the cell itself included),
+    /// each with whether it is within the inscribed radius too.
+    disk: Vec<(i64, i64, bool)>,
+    inflation_cost_s_per_m: f32,
 }
 
 impl WorldPlanner {
@@ -142,13 +168,16 @@ impl WorldPlanner {
             to_cell(goal_m),
             cfg.min_cost_s_per_m,
         );
-        let k = (cfg.inflation_radius_m / r).floor() as i64;
-        let disk = (-k..=k)
+        let outer_m = cfg.inflation_radius_m.max(cfg.inscribed_radius_m);
+        let k = (outer_m / r).floor() as i64;
+        let disk: Vec<(i64, i64, bool)> = (-k..=k)
             .flat_map(|dy| (-k..=k).map(move |dx| (dx, dy)))
-            .filter(|&(dx, dy)| {
-                ((dx * dx + dy * dy) as f64).sqrt() * r <= cfg.inflation_radius_m + 1e-9
+            .filter_map(|(dx, dy)| {
+                let d_m = ((dx * dx + dy * dy) as f64).sqrt() * r;
+                (d_m <= outer_m + 1e-9).then_some((dx, dy, d_m <= cfg.inscribed_radius_m + 1e-9))
             })
             .collect();
+        let inscribed_reaches_out = disk.iter().any(|&(dx, dy, i)| i && (dx, dy) != (0, 0));
         Self {
             origin_m,
             resolution_m: r,
@@ -156,7 +185,9 @@ impl WorldPlanner {
             dstar,
             base: vec![cfg.unknown_cost_s_per_m; w * h],
             lethal_near: vec![0; w * h],
+            lethal_inscribed: inscribed_reaches_out.then(|| vec![0; w * h]),
             disk,
+            inflation_cost_s_per_m: cfg.inflation_cost_s_per_m,
         }
     }
 
@@ -201,25 +232,35 @@ impl WorldPlanner {
             let old = std::mem::replace(&mut self.base[i], c.cost_s_per_m);
             touched.push((x, y));
             if lethal(old) != lethal(c.cost_s_per_m) {
-                for &(dx, dy) in &self.disk {
+                let count = |n: &mut u16| {
+                    if lethal(c.cost_s_per_m) {
+                        *n += 1;
+                    } else {
+                        *n -= 1;
+                    }
+                };
+                for &(dx, dy, inscribed) in &self.disk {
                     let (nx, ny) = (x as i64 + dx, y as i64 + dy);
                     if nx >= 0 && ny >= 0 && (nx as usize) < w && (ny as usize) < h {
                         let j = ny as usize * w + nx as usize;
-                        if lethal(c.cost_s_per_m) {
-                            self.lethal_near[j] += 1;
-                        } else {
-                            self.lethal_near[j] -= 1;
+                        count(&mut self.lethal_near[j]);
+                        if let (true, Some(l)) = (inscribed, self.lethal_inscribed.as_mut()) {
+                            count(&mut l[j]);
                         }
                         touched.push((nx as usize, ny as usize));
                     }
                 }
             }
         }
-        let (base, lethal_near) = (&self.base, &self.lethal_near);
+        let (base, near, inscribed) = (&self.base, &self.lethal_near, &self.lethal_inscribed);
+        let dear = self.inflation_cost_s_per_m;
         self.dstar.set_costs(touched.into_iter().map(|(x, y)| {
             let i = y * w + x;
-            let effective = if lethal_near[i] > 0 {
+            let effective = if inscribed.as_ref().is_some_and(|l| l[i] > 0) {
                 f32::INFINITY
+            } else if near[i] > 0 && base[i] >= 0.0 {
+                // A negative cost is blocked already and stays so.
+                base[i].max(dear)
             } else {
                 base[i]
             };
@@ -227,8 +268,8 @@ impl WorldPlanner {
         }))
     }
 
-    /// A goal in a blocked cell (lethal, or within the inflation of one) has
-    /// no path. For a goal that is only a direction (a guide's subgoal a
+    /// A goal in a blocked cell (lethal, or within the inscribed radius of
+    /// one) has no path. For a goal that is only a direction (a guide's subgoal a
     /// fixed distance out along its heading) the place to head for is the
     /// farthest free cell on the straight line from `from_m` to the goal,
     /// before the first blocked one. When that line is blocked from its
@@ -384,6 +425,7 @@ mod tests {
     fn a_goal_inside_an_obstacle_is_pulled_back_to_the_free_ground_before_it() {
         let cfg = WorldPlannerConfig {
             margin_m: 10.0,
+            inscribed_radius_m: 1.0,
             inflation_radius_m: 1.0,
             ..Default::default()
         };
@@ -412,7 +454,7 @@ mod tests {
         );
         p.apply_costmap(&header, &cells);
         assert_eq!(p.plan([0.0, 0.0]), Err(PlanError::NoPath));
-        // The block starts at x = 8, its inflation at x = 7: the last free
+        // The block starts at x = 8, its inscribed margin at x = 7: the last free
         // point on the line is short of 6.5 m (the cell boundary).
         let g = p.goal_pulled_back_from_blocked([0.0, 0.0]).unwrap();
         assert!(g[1] == 0.0 && g[0] > 5.5 && g[0] < 6.5, "{g:?}");
@@ -428,11 +470,12 @@ mod tests {
     fn facing_a_wall_the_goal_behind_it_becomes_the_free_cell_nearest_it() {
         let cfg = WorldPlannerConfig {
             margin_m: 10.0,
+            inscribed_radius_m: 1.0,
             inflation_radius_m: 1.0,
             ..Default::default()
         };
         // A wall x = 1..=3, y = -5..=5 right in front of the robot at the
-        // origin (its inflation reaches x = 0: the line is blocked from its
+        // origin (its inscribed margin reaches x = 0: the line is blocked from its
         // first step), the goal in it at x = 3.
         let header = CostmapHeader {
             stamp: Stamp::default(),
@@ -453,7 +496,7 @@ mod tests {
         let mut p = WorldPlanner::new([0.0, 0.0], [3.0, 0.0], &cfg);
         p.apply_costmap(&header, &cells);
         assert_eq!(p.plan([0.0, 0.0]), Err(PlanError::NoPath));
-        // The inflation ends at x = 4: behind the wall, 2 m from the goal
+        // The inscribed margin ends at x = 4: behind the wall, 2 m from the goal
         // (before it, x = -1, is 4 m; past its ends, 6 m).
         let g = p.goal_pulled_back_from_blocked([0.0, 0.0]).unwrap();
         assert_eq!(g, [5.0, 0.0]);
@@ -510,5 +553,93 @@ mod tests {
         let (path, cost) = p.plan([0.0, 0.0]).unwrap();
         assert!(path.iter().all(|q| q[1] == 0.0), "straight again: {path:?}");
         assert!((cost - 20.0).abs() < 1e-9);
+    }
+    /// A 1 m costmap message from a list of lethal cells over a free square.
+    fn lethal_cells_message(
+        x_min_m: f64,
+        y_max_m: f64,
+        side: usize,
+        lethal: &[(f64, f64)],
+    ) -> (CostmapHeader, Vec<CostCell>) {
+        let header = CostmapHeader {
+            width: side as u32,
+            height: side as u32,
+            resolution_m: 1.0,
+            x_min_m,
+            y_max_m,
+            ..Default::default()
+        };
+        let cells = (0..side * side)
+            .map(|k| {
+                let c = header.cell_centre_m(k);
+                let hit = lethal
+                    .iter()
+                    .any(|&(x, y)| (c[0] - x).abs() < 0.1 && (c[1] - y).abs() < 0.1);
+                CostCell {
+                    cost_s_per_m: if hit { f32::INFINITY } else { 1.0 },
+                    variance: 0.0,
+                }
+            })
+            .collect();
+        (header, cells)
+    }
+
+    #[test]
+    fn a_goal_ringed_by_trees_a_cell_apart_is_reachable_through_the_dear_margin() {
+        // Issue 20, seed 3: trees every other cell round the goal at (10, 0)
+        // (a ring of side 6 m, gaps of one 1 m cell). Blocking the 1.5 m
+        // margin sealed every gap; a dear margin leaves them open at a price.
+        let ring: Vec<(f64, f64)> = (-3..=3)
+            .flat_map(|i| [(i, -3), (i, 3), (-3, i), (3, i)])
+            .filter(|&(a, b): &(i32, i32)| (a + b) % 2 != 0)
+            .map(|(a, b)| (10.0 + a as f64, b as f64))
+            .collect();
+        let (header, cells) = lethal_cells_message(2.0, 8.0, 17, &ring);
+        let cfg = WorldPlannerConfig {
+            margin_m: 10.0,
+            ..Default::default()
+        };
+        let mut p = WorldPlanner::new([0.0, 0.0], [10.0, 0.0], &cfg);
+        p.apply_costmap(&header, &cells);
+        let (path, cost_s) = p.plan([0.0, 0.0]).expect("a gap in the ring");
+        assert_eq!(path.last(), Some(&[10.0, 0.0]));
+        assert!(
+            path.iter().all(|q| !ring.contains(&(q[0], q[1]))),
+            "through a tree: {path:?}"
+        );
+        // The gap and the cells either side of it cost 4 s/m: dearer than
+        // the 10 m of open ground, and no more than a few dear cells.
+        assert!(cost_s > 12.0 && cost_s < 30.0, "{cost_s} s: {path:?}");
+        // The margin blocked, as before issue 20: sealed.
+        let blocked = WorldPlannerConfig {
+            inscribed_radius_m: 1.5,
+            ..cfg
+        };
+        let mut q = WorldPlanner::new([0.0, 0.0], [10.0, 0.0], &blocked);
+        q.apply_costmap(&header, &cells);
+        assert_eq!(q.plan([0.0, 0.0]), Err(PlanError::NoPath));
+    }
+
+    #[test]
+    fn a_path_keeps_out_of_the_margin_while_a_cheaper_way_round_exists() {
+        // Two rocks 2 m apart across the line: the 1-cell gap between them
+        // is legal but dear; the way round is 2-3 m longer and taken.
+        let (header, cells) = lethal_cells_message(5.0, 5.0, 11, &[(10.0, 1.0), (10.0, -1.0)]);
+        let cfg = WorldPlannerConfig {
+            margin_m: 10.0,
+            ..Default::default()
+        };
+        let mut p = WorldPlanner::new([0.0, 0.0], [20.0, 0.0], &cfg);
+        p.apply_costmap(&header, &cells);
+        let (path, _) = p.plan([0.0, 0.0]).unwrap();
+        assert!(
+            !path.contains(&[10.0, 0.0]),
+            "squeezed through the gap: {path:?}"
+        );
+        // Dear as it is, the margin is no wall: a goal inside it is planned to.
+        let mut g = WorldPlanner::new([0.0, 0.0], [10.0, 0.0], &cfg);
+        g.apply_costmap(&header, &cells);
+        assert_eq!(g.goal_pulled_back_from_blocked([0.0, 0.0]), None);
+        assert!(g.plan([0.0, 0.0]).is_ok());
     }
 }
