@@ -12,8 +12,8 @@ pub struct RobotLimits {
     pub max_angular_radps: f64,
     pub max_linear_accel_mps2: f64,
     pub max_angular_accel_radps2: f64,
-    /// Footprint radius: the cells under the centre and at this distance
-    /// ahead, behind and to the sides must be free.
+    /// The footprint is a disc of this radius; it may not overlap a lethal
+    /// cell.
     pub radius_m: f64,
 }
 
@@ -56,14 +56,27 @@ impl Robot {
         [self.x_m, self.y_m, self.yaw_rad]
     }
 
-    fn footprint_free(world: &World, x: f64, y: f64, yaw: f64, r: f64) -> bool {
-        let (s, c) = yaw.sin_cos();
-        [(0.0, 0.0), (r, 0.0), (-r, 0.0), (0.0, r), (0.0, -r)]
-            .iter()
-            .all(|&(fx, fy)| {
-                let (cx, cy) = world.cell_of(x + c * fx - s * fy, y + s * fx + c * fy);
-                !world.lethal(cx, cy)
+    /// Whether the robot's disc of radius `r` centred at (x, y) touches no
+    /// lethal cell (each a square of the world's resolution). A disc's
+    /// footprint does not depend on the heading, so turning in place never
+    /// collides; sampling points on the body instead let a turn pin the
+    /// robot against a tree it was already beside (issue 20, bench nav
+    /// random seed 4: stuck 3 m from the goal for 400 s), and missed the
+    /// corners a diagonal approach runs into.
+    pub fn footprint_free(world: &World, x: f64, y: f64, r: f64) -> bool {
+        let res = world.resolution_m;
+        let (x0, y0) = world.cell_of(x - r, y - r);
+        let (x1, y1) = world.cell_of(x + r, y + r);
+        (y0..=y1).all(|cy| {
+            (x0..=x1).all(|cx| {
+                if !world.lethal(cx, cy) {
+                    return true;
+                }
+                let dx = ((x - cx as f64 * res).abs() - res / 2.0).max(0.0);
+                let dy = ((y - cy as f64 * res).abs() - res / 2.0).max(0.0);
+                dx * dx + dy * dy >= r * r
             })
+        })
     }
 
     /// Advances `dt_s` under the command (v, omega). Returns false on a
@@ -94,13 +107,11 @@ impl Robot {
             self.x_m + self.linear_mps * dt_s * mid.cos(),
             self.y_m + self.linear_mps * dt_s * mid.sin(),
         );
-        if !Self::footprint_free(world, nx, ny, yaw, limits.radius_m) {
+        if !Self::footprint_free(world, nx, ny, limits.radius_m) {
             self.linear_mps = 0.0;
             self.collisions += 1;
-            // Turning in place is still allowed where the footprint fits.
-            if Self::footprint_free(world, self.x_m, self.y_m, yaw, limits.radius_m) {
-                self.yaw_rad = yaw;
-            }
+            // Turning in place: the disc stays where it is.
+            self.yaw_rad = yaw;
             return false;
         }
         let d = (nx - self.x_m).hypot(ny - self.y_m);
@@ -161,5 +172,28 @@ mod tests {
             r.step(&world, (1.0, 0.0), 0.1, &limits);
         }
         assert!(r.x_m < before, "drove back the way it came");
+    }
+
+    #[test]
+    fn the_disc_footprint_is_exact_at_corners_and_free_to_turn() {
+        let mut world = World::new(20, 20, Cover::Grass);
+        world.set_obstacle(10, 10, Obstacle::Wall); // the square [9.5, 10.5]^2
+        let r = 0.4;
+        // Beside a face: free until the disc reaches it.
+        assert!(Robot::footprint_free(&world, 9.0, 10.0, r));
+        assert!(!Robot::footprint_free(&world, 9.2, 10.0, r));
+        // Diagonally off the corner (9.5, 9.5): 0.35 m away collides, 0.45 m
+        // does not; points sampled on the body axes saw neither.
+        let off = |d: f64| 9.5 - d / 2f64.sqrt();
+        assert!(!Robot::footprint_free(&world, off(0.35), off(0.35), r));
+        assert!(Robot::footprint_free(&world, off(0.45), off(0.45), r));
+        // A robot pressed against the face turns in place whatever it faces.
+        let mut robot = Robot::at([9.05, 10.0, 0.0]);
+        let limits = RobotLimits::default();
+        for _ in 0..40 {
+            robot.step(&world, (1.0, 1.5), 0.1, &limits);
+        }
+        assert!(robot.yaw_rad > 1.0, "turned: {}", robot.yaw_rad);
+        assert!(Robot::footprint_free(&world, robot.x_m, robot.y_m, r));
     }
 }
