@@ -79,8 +79,56 @@ impl Robot {
         })
     }
 
-    /// Advances `dt_s` under the command (v, omega). Returns false on a
-    /// collision (the robot stays where it was, stopped).
+    /// Where a move `m` (metres) that hits an obstacle ends instead: the
+    /// disc slides along the obstacle nearest it, keeping the part of the
+    /// move that does not push into it, as a round robot glancing off a
+    /// tree's corner. `None` head-on, or where the slide hits something
+    /// too. Without it a glancing contact pinned the robot for good: its
+    /// controller asked for the same move every step (issue 20, bench nav
+    /// obstacle-field-3).
+    fn slide(&self, world: &World, m: [f64; 2], r: f64) -> Option<[f64; 2]> {
+        let reach = r + m[0].hypot(m[1]);
+        let res = world.resolution_m;
+        let (x0, y0) = world.cell_of(self.x_m - reach, self.y_m - reach);
+        let (x1, y1) = world.cell_of(self.x_m + reach, self.y_m + reach);
+        let mut nearest: Option<(f64, [f64; 2])> = None;
+        for cy in y0..=y1 {
+            for cx in x0..=x1 {
+                if !world.lethal(cx, cy) {
+                    continue;
+                }
+                let (ccx, ccy) = (cx as f64 * res, cy as f64 * res);
+                let p = [
+                    self.x_m.clamp(ccx - res / 2.0, ccx + res / 2.0),
+                    self.y_m.clamp(ccy - res / 2.0, ccy + res / 2.0),
+                ];
+                let d = (self.x_m - p[0]).hypot(self.y_m - p[1]);
+                if nearest.is_none_or(|(b, _)| d < b) {
+                    nearest = Some((d, p));
+                }
+            }
+        }
+        let (d, p) = nearest?;
+        if d < 1e-9 {
+            return None;
+        }
+        let n = [(self.x_m - p[0]) / d, (self.y_m - p[1]) / d];
+        let into = m[0] * n[0] + m[1] * n[1];
+        if into >= 0.0 {
+            return None;
+        }
+        let t = [m[0] - into * n[0], m[1] - into * n[1]];
+        // Head-on: nothing left to slide with.
+        if t[0].hypot(t[1]) < 0.05 * m[0].hypot(m[1]) {
+            return None;
+        }
+        let q = [self.x_m + t[0], self.y_m + t[1]];
+        Self::footprint_free(world, q[0], q[1], r).then_some(q)
+    }
+
+    /// Advances `dt_s` under the command (v, omega). Returns false when the
+    /// robot hit an obstacle head-on and stopped where it was; a glancing
+    /// contact slides ([`Robot::slide`]). Both count a collision.
     pub fn step(
         &mut self,
         world: &World,
@@ -107,13 +155,26 @@ impl Robot {
             self.x_m + self.linear_mps * dt_s * mid.cos(),
             self.y_m + self.linear_mps * dt_s * mid.sin(),
         );
-        if !Self::footprint_free(world, nx, ny, limits.radius_m) {
-            self.linear_mps = 0.0;
+        let (nx, ny) = if Self::footprint_free(world, nx, ny, limits.radius_m) {
+            (nx, ny)
+        } else {
             self.collisions += 1;
-            // Turning in place: the disc stays where it is.
             self.yaw_rad = yaw;
-            return false;
-        }
+            match self.slide(world, [nx - self.x_m, ny - self.y_m], limits.radius_m) {
+                Some(p) => {
+                    let (m, t) = (
+                        (nx - self.x_m).hypot(ny - self.y_m),
+                        (p[0] - self.x_m).hypot(p[1] - self.y_m),
+                    );
+                    self.linear_mps *= t / m;
+                    (p[0], p[1])
+                }
+                None => {
+                    self.linear_mps = 0.0;
+                    return false;
+                }
+            }
+        };
         let d = (nx - self.x_m).hypot(ny - self.y_m);
         self.distance_m += d;
         self.traversal_cost_s += d * world.cost_s_per_m(cx, cy) as f64;
@@ -195,5 +256,33 @@ mod tests {
         }
         assert!(robot.yaw_rad > 1.0, "turned: {}", robot.yaw_rad);
         assert!(Robot::footprint_free(&world, robot.x_m, robot.y_m, r));
+    }
+
+    #[test]
+    fn a_glancing_contact_slides_past_the_corner_and_a_head_on_one_stops() {
+        let mut world = World::new(30, 30, Cover::Grass);
+        world.set_obstacle(15, 15, Obstacle::Wall); // the square [14.5, 15.5]^2
+        let limits = RobotLimits::default();
+        // Driving east 0.2 m left of the disc's clear line: it meets the
+        // corner (14.5, 15.5) off-centre and slides over it.
+        let mut glancing = Robot::at([10.0, 15.7, 0.0]);
+        for _ in 0..100 {
+            glancing.step(&world, (1.0, 0.0), 0.1, &limits);
+        }
+        assert!(glancing.collisions > 0, "it touched the corner");
+        assert!(glancing.x_m > 16.0, "and went past: {:?}", glancing.pose());
+        assert!(Robot::footprint_free(
+            &world,
+            glancing.x_m,
+            glancing.y_m,
+            0.4
+        ));
+        // Straight at the face: it stops before it.
+        let mut head_on = Robot::at([10.0, 15.0, 0.0]);
+        for _ in 0..100 {
+            head_on.step(&world, (1.0, 0.0), 0.1, &limits);
+        }
+        assert!(head_on.x_m < 14.1 + 1e-9, "{:?}", head_on.pose());
+        assert!(head_on.collisions > 10);
     }
 }
