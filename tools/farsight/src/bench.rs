@@ -42,6 +42,9 @@ pub enum BenchCommand {
     /// agent on 5 x 5 km worlds, paired % improved and % cost difference
     /// against no far field.
     Fitam(crate::bench_fitam::FitamArgs),
+    /// Merges `bench fitam --shard K/N --out FILE.json` files and prints the
+    /// table of the whole run; refuses mixed versions, hashes or commits.
+    FitamMerge(crate::bench_fitam::FitamMergeArgs),
     /// What `farsight record` sustains writing 1280x720 RGB frames to disk.
     Recorder(crate::bench_recorder::RecorderArgs),
     /// (internal) the receiving side of one cell of the transport benchmark.
@@ -172,6 +175,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Nav(a) => crate::bench_nav::run(a),
         BenchCommand::Fitam(a) => crate::bench_fitam::run(a),
+        BenchCommand::FitamMerge(a) => crate::bench_fitam::run_merge(a),
         BenchCommand::NavMerge(a) => crate::bench_record::run_merge(a),
         BenchCommand::Recorder(a) => crate::bench_recorder::run(a),
         BenchCommand::Planning(a) => crate::bench_planning::run(a),

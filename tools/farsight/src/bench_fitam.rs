@@ -13,17 +13,28 @@
 //! *Perfect Vision* (local observations out to 100 m). The learned model's
 //! row needs a 360 degree camera rig the simulator does not render yet; it
 //! is not in this table.
+//!
+//! Decided before measured (issue 20, item 7), with `bench nav`'s
+//! bookkeeping ([`crate::bench_record`]): the [`FitamProtocol`] (world
+//! generator and agent-rule versions, every trial parameter, the graph
+//! file's SHA-256) is hashed into the results file (`--out FILE.json`,
+//! rewritten after every problem); `--shard K/N` runs every N-th world, and
+//! `farsight bench fitam-merge` joins the shards' files, refusing mixed
+//! versions, parameters, graphs or commits.
 
+use crate::bench_record::{self as record, Decided, Keyed, MethodGraph, Results, Shard};
 use crate::graph::Graph;
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use clap::Args;
 use farsight_costmap_fusion::stage::FusionStageConfig;
 use farsight_sim::fitam_protocol::{
     paired_against, sample_problems, sense_plan_act, MeanCi, ProtocolConfig, Row,
 };
 use farsight_sim::scenario::random_world;
-use std::io::Write;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Mutex;
 use std::time::Instant;
 
@@ -54,14 +65,111 @@ pub struct FitamArgs {
     pub jobs: Option<usize>,
     /// The graph whose costmap-fusion config the map uses.
     #[arg(long, default_value = "graphs/sim/fitam-gt.toml")]
-    pub graph: std::path::PathBuf,
-    /// Write one JSON line per trial (map, problem, row, outcome) here.
+    pub graph: PathBuf,
+    /// Run only the K-th of N parts of the worlds (world k is in part
+    /// ((k - 1) mod N) + 1), e.g. one per array job.
     #[arg(long)]
-    pub out: Option<std::path::PathBuf>,
+    pub shard: Option<Shard>,
+    /// Write the results (commit, versions, protocol hash, shard, each
+    /// trial) to this JSON file, rewritten after every problem.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
 }
 
-/// One trial's outcome, as written to `--out`.
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize, PartialEq)]
+/// Everything decided before a `bench fitam` trial is run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FitamProtocol {
+    /// `farsight_sim::scenario::WORLD_GENERATOR_VERSION`.
+    pub world_generator: u32,
+    /// `farsight_sim::fitam_protocol::AGENT_RULES_VERSION`.
+    pub agent_rules: u32,
+    pub maps: usize,
+    pub problems_per_map: usize,
+    pub size_m: usize,
+    pub min_goal_m: f64,
+    pub edge_margin_m: f64,
+    /// Row names, No FF first.
+    pub rows: Vec<String>,
+    /// The graph the far-field filter's constants come from.
+    pub graph: MethodGraph,
+}
+
+/// One trial of the list: world seed, problem and row.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+pub struct FitamKey {
+    pub map_seed: u64,
+    pub problem: usize,
+    pub row: String,
+}
+
+impl fmt::Display for FitamKey {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "world {} problem {} {}",
+            self.map_seed, self.problem, self.row
+        )
+    }
+}
+
+impl Decided for FitamProtocol {
+    type Key = FitamKey;
+
+    fn fields(&self) -> Vec<(&'static str, String)> {
+        vec![
+            ("protocol.world_generator", self.world_generator.to_string()),
+            ("protocol.agent_rules", self.agent_rules.to_string()),
+            (
+                "protocol.maps / problems_per_map / size_m",
+                format!(
+                    "{} / {} / {}",
+                    self.maps, self.problems_per_map, self.size_m
+                ),
+            ),
+            (
+                "protocol.min_goal_m / edge_margin_m",
+                format!("{} / {}", self.min_goal_m, self.edge_margin_m),
+            ),
+            ("protocol.rows", format!("{:?}", self.rows)),
+            ("protocol.graph (path, hash)", format!("{:?}", self.graph)),
+        ]
+    }
+
+    /// Per world, per problem, per row.
+    fn trial_list(&self) -> Vec<FitamKey> {
+        let mut out = Vec::new();
+        for map_seed in 1..=self.maps as u64 {
+            for problem in 0..self.problems_per_map {
+                for row in &self.rows {
+                    out.push(FitamKey {
+                        map_seed,
+                        problem,
+                        row: row.clone(),
+                    });
+                }
+            }
+        }
+        out
+    }
+}
+
+impl Keyed for TrialLine {
+    type Key = FitamKey;
+
+    fn key(&self) -> FitamKey {
+        FitamKey {
+            map_seed: self.map_seed,
+            problem: self.problem,
+            row: self.row.clone(),
+        }
+    }
+}
+
+/// `farsight bench fitam`'s results file.
+pub type FitamResults = Results<FitamProtocol, TrialLine>;
+
+/// One trial's outcome.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct TrialLine {
     pub map_seed: u64,
     pub problem: usize,
@@ -74,13 +182,18 @@ pub struct TrialLine {
     pub iterations: usize,
 }
 
-/// The far-field filter constants of the graph's costmap-fusion node.
-fn protocol_config(graph_path: &std::path::Path) -> Result<ProtocolConfig> {
-    let path = if graph_path.is_relative() && !graph_path.exists() {
-        crate::graph::repo_file(&graph_path.to_string_lossy())?
+/// The graph file at `graph_path`, or the repository's file of that name.
+fn graph_file(graph_path: &Path) -> Result<PathBuf> {
+    if graph_path.is_relative() && !graph_path.exists() {
+        crate::graph::repo_file(&graph_path.to_string_lossy())
     } else {
-        graph_path.to_path_buf()
-    };
+        Ok(graph_path.to_path_buf())
+    }
+}
+
+/// The far-field filter constants of the graph's costmap-fusion node.
+fn protocol_config(graph_path: &Path) -> Result<ProtocolConfig> {
+    let path = graph_file(graph_path)?;
     let graph = Graph::load(&path)?;
     let Some(node) = graph
         .nodes
@@ -185,6 +298,66 @@ pub fn table(lines: &[TrialLine], rows: &[Row]) -> String {
     out
 }
 
+/// The first lines of a table: what was measured, under which rules.
+pub fn header(f: &FitamResults) -> String {
+    let p = &f.protocol;
+    format!(
+        "FITAM protocol (section V-A4): {} worlds of {} m, {} problems each (start/goal >= {} m apart, >= {} m from the edge), rows {}\nprotocol {} (world generator v{}, agent rules v{}, far field of {}), commit {}{}\n",
+        p.maps,
+        p.size_m,
+        p.problems_per_map,
+        p.min_goal_m,
+        p.edge_margin_m,
+        p.rows.join(", "),
+        &f.protocol_hash[..16.min(f.protocol_hash.len())],
+        p.world_generator,
+        p.agent_rules,
+        p.graph.graph,
+        f.commit,
+        if f.dirty { " (with uncommitted changes)" } else { "" },
+    )
+}
+
+/// A results file's rows, parsed back (a merge of files from this build).
+fn rows_of(f: &FitamResults) -> Result<Vec<Row>> {
+    f.protocol
+        .rows
+        .iter()
+        .map(|n| Row::from_name(n).ok_or_else(|| anyhow::anyhow!("unknown row {n:?} in the file")))
+        .collect()
+}
+
+/// `farsight bench fitam-merge`.
+#[derive(Args)]
+pub struct FitamMergeArgs {
+    /// Results files of the shards (`farsight bench fitam --shard K/N --out
+    /// FILE.json`).
+    #[arg(required = true)]
+    pub files: Vec<PathBuf>,
+    /// Write the merged results here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Reads and merges shard files and prints the table of the whole run.
+pub fn run_merge(a: FitamMergeArgs) -> Result<()> {
+    let files: Vec<(PathBuf, FitamResults)> = a
+        .files
+        .iter()
+        .map(|p| Ok((p.clone(), record::read(p)?)))
+        .collect::<Result<_>>()?;
+    let merged = record::merge(&files)?;
+    print!(
+        "{}\n{}",
+        header(&merged),
+        table(&merged.trials, &rows_of(&merged)?)
+    );
+    if let Some(out) = &a.out {
+        record::write(out, &merged)?;
+    }
+    Ok(())
+}
+
 /// Refuses arguments that would sample nothing or everything, naming the flag.
 fn check_args(a: &FitamArgs) -> Result<()> {
     if a.maps == 0 || a.problems_per_map == 0 {
@@ -204,50 +377,77 @@ fn check_args(a: &FitamArgs) -> Result<()> {
     Ok(())
 }
 
+/// The protocol of a run with these arguments.
+fn protocol(a: &FitamArgs, rows: &[Row]) -> Result<FitamProtocol> {
+    let path = graph_file(&a.graph)?;
+    Ok(FitamProtocol {
+        world_generator: farsight_sim::scenario::WORLD_GENERATOR_VERSION,
+        agent_rules: farsight_sim::fitam_protocol::AGENT_RULES_VERSION,
+        maps: a.maps,
+        problems_per_map: a.problems_per_map,
+        size_m: a.size_m,
+        min_goal_m: a.min_goal_m,
+        edge_margin_m: a.edge_margin_m,
+        rows: rows.iter().map(|r| r.name().to_string()).collect(),
+        graph: MethodGraph::read("far_field_filter", &a.graph.to_string_lossy(), &path)?,
+    })
+}
+
 pub fn run(a: FitamArgs) -> Result<()> {
     check_args(&a)?;
     let cfg = protocol_config(&a.graph)?;
     let rows = rows(&a.rows)?;
+    let shard = a.shard.unwrap_or(Shard::ALL);
+    let results = FitamResults::start(protocol(&a, &rows)?, shard);
+    // World k (0-based) is shard (k mod N) + 1's: whole worlds, as each
+    // costs a generation and a gigabyte.
+    let maps: Vec<u64> = (0..a.maps)
+        .filter(|&k| shard.holds(k))
+        .map(|k| k as u64 + 1)
+        .collect();
     let jobs = a
         .jobs
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
-        .clamp(1, a.maps);
-    let mut out = match &a.out {
-        Some(p) => Some(std::io::BufWriter::new(
-            std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?,
-        )),
-        None => None,
-    };
-    println!(
-        "FITAM protocol (section V-A4): {} worlds of {} m, {} problems each (start/goal >= {} m apart), rows {}, {jobs} threads (one run, this machine):\n",
-        a.maps,
-        a.size_m,
-        a.problems_per_map,
-        a.min_goal_m,
-        rows.iter().map(|r| r.name()).collect::<Vec<_>>().join(", ")
-    );
+        .clamp(1, maps.len().max(1));
+    print!("{}", header(&results));
+    println!("shard {shard}: worlds {maps:?}, {jobs} threads (one run, this machine)\n");
+    if let Some(out) = &a.out {
+        // Written now, so a bad path fails before any trial is run.
+        record::write(out, &results)?;
+    }
     let t0 = Instant::now();
     let next = AtomicUsize::new(0);
-    let lines: Mutex<Vec<TrialLine>> = Mutex::new(Vec::new());
+    let stop = AtomicBool::new(false);
+    let results = Mutex::new(results);
+    let failure: Mutex<Option<anyhow::Error>> = Mutex::new(None);
+    let fail = |e: anyhow::Error| {
+        stop.store(true, Ordering::Relaxed);
+        failure.lock().expect("no panics hold it").get_or_insert(e);
+    };
     std::thread::scope(|s| {
         for _ in 0..jobs {
             s.spawn(|| loop {
                 let k = next.fetch_add(1, Ordering::Relaxed);
-                if k >= a.maps {
+                if k >= maps.len() || stop.load(Ordering::Relaxed) {
                     return;
                 }
-                let seed = k as u64 + 1;
+                let seed = maps[k];
                 let world = random_world(seed, a.size_m).world;
                 let problems =
                     sample_problems(&world, a.problems_per_map, a.min_goal_m, a.edge_margin_m, seed);
                 if problems.len() < a.problems_per_map {
-                    eprintln!(
-                        "  world {seed}: only {} problems >= {} m apart",
+                    // The trial list was decided with problems_per_map per world.
+                    return fail(anyhow::anyhow!(
+                        "world {seed} holds only {} problems >= {} m apart (--problems-per-map {}): lower --problems-per-map or --min-goal-m, or raise --size-m",
                         problems.len(),
-                        a.min_goal_m
-                    );
+                        a.min_goal_m,
+                        a.problems_per_map
+                    ));
                 }
                 for (i, p) in problems.iter().enumerate() {
+                    if stop.load(Ordering::Relaxed) {
+                        return;
+                    }
                     let mut mine = Vec::new();
                     for &row in &rows {
                         let t = Instant::now();
@@ -274,24 +474,29 @@ pub fn run(a: FitamArgs) -> Result<()> {
                             iterations: r.iterations,
                         });
                     }
-                    lines.lock().expect("no panics hold it").extend(mine);
+                    let mut res = results.lock().expect("no panics hold it");
+                    res.trials.extend(mine);
+                    // In the trial list's order, as a merge gives them.
+                    res.trials.sort_by_key(|t| {
+                        (t.map_seed, t.problem, rows.iter().position(|r| r.name() == t.row))
+                    });
+                    if let Some(out) = &a.out {
+                        if let Err(e) = record::write(out, &*res) {
+                            return fail(e);
+                        }
+                    }
                 }
             });
         }
     });
-    let mut lines = lines.into_inner().expect("no panics hold it");
-    lines.sort_by(|a, b| (a.map_seed, a.problem, &a.row).cmp(&(b.map_seed, b.problem, &b.row)));
-    if let Some(w) = &mut out {
-        for l in &lines {
-            serde_json::to_writer(&mut *w, l)?;
-            writeln!(w)?;
-        }
-        w.flush()?;
+    if let Some(e) = failure.into_inner().expect("no panics hold it") {
+        return Err(e);
     }
-    print!("{}", table(&lines, &rows));
+    let results = results.into_inner().expect("no panics hold it");
+    print!("{}", table(&results.trials, &rows));
     println!(
         "\n{} trials in {:.0} s. Paired over the problems both No FF and the row reached; ± is the 95% interval (1.96 standard errors), as Table I.",
-        lines.len(),
+        results.trials.len(),
         t0.elapsed().as_secs_f64()
     );
     Ok(())
@@ -357,6 +562,88 @@ mod tests {
             .to_string();
         assert!(e.contains("--size-m 9000"), "{e}");
         assert!(check_args(&parse(&["--maps", "0"])).is_err());
+    }
+
+    #[test]
+    fn shards_of_worlds_merge_into_the_unsharded_run_and_mixed_files_are_refused() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            a: FitamArgs,
+        }
+        let dir =
+            std::env::temp_dir().join(format!("farsight-fitam-shards-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let run_to = |name: &str, extra: &[&str]| -> FitamResults {
+            let out = dir.join(name);
+            let small = [
+                "x",
+                "--maps",
+                "3",
+                "--problems-per-map",
+                "2",
+                "--size-m",
+                "300",
+                "--min-goal-m",
+                "150",
+                "--edge-margin-m",
+                "20",
+                "--rows",
+                "gt_far_field",
+                "--jobs",
+                "1",
+                "--out",
+            ];
+            let args: Vec<&str> = [&small[..], &[out.to_str().unwrap()], extra].concat();
+            run(Cli::try_parse_from(args).unwrap().a).unwrap();
+            record::read(&out).unwrap()
+        };
+        let whole = run_to("whole.json", &[]);
+        assert_eq!(
+            whole.trials.len(),
+            3 * 2 * 2,
+            "every trial, written as it ran"
+        );
+        assert_eq!(whole.protocol_hash, whole.protocol.hash());
+        let parts: Vec<(PathBuf, FitamResults)> = (1..=2)
+            .map(|k| {
+                let name = format!("part{k}.json");
+                let f = run_to(&name, &["--shard", &format!("{k}/2")]);
+                (dir.join(name), f)
+            })
+            .collect();
+        // Whole worlds per shard: 1 and 3 in the first, 2 in the second.
+        let worlds = |f: &FitamResults| {
+            let mut w: Vec<u64> = f.trials.iter().map(|t| t.map_seed).collect();
+            w.dedup();
+            w
+        };
+        assert_eq!(worlds(&parts[0].1), [1, 3]);
+        assert_eq!(worlds(&parts[1].1), [2]);
+        let merged = record::merge(&parts).unwrap();
+        assert_eq!(
+            merged.trials, whole.trials,
+            "the same trials, deterministic"
+        );
+        assert_eq!(
+            table(&merged.trials, &rows_of(&merged).unwrap()),
+            table(&whole.trials, &rows_of(&whole).unwrap())
+        );
+        // A shard from other agent rules is refused, by file and field.
+        let mut newer = parts[1].clone();
+        newer.1.protocol.agent_rules += 1;
+        newer.1.protocol_hash = newer.1.protocol.hash();
+        let e = record::merge(&[parts[0].clone(), newer])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("part2.json") && e.contains("protocol.agent_rules"),
+            "{e}"
+        );
+        let e = record::merge(&parts[..1]).unwrap_err().to_string();
+        assert!(e.contains("4 of 12 trials") && e.contains("world 2"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

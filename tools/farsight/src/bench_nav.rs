@@ -57,7 +57,7 @@
 
 use crate::bench::NavArgs;
 use crate::bench_record::{
-    self as record, MethodGraph, Protocol, ResultsFile, Shard, TrialRecord, Versions,
+    self as record, Decided, MethodGraph, Protocol, ResultsFile, Shard, TrialRecord, Versions,
 };
 use crate::graph::Graph;
 use crate::lockstep::{self, Trial};
@@ -247,16 +247,7 @@ pub fn run(a: NavArgs) -> Result<()> {
         .collect::<Result<_>>()?;
     let protocol = protocol(&a, &rows)?;
     let shard = a.shard.unwrap_or(Shard::ALL);
-    let (commit, dirty) = record::git_commit();
-    let mut results = ResultsFile {
-        format: record::RESULTS_FORMAT,
-        commit,
-        dirty,
-        protocol_hash: protocol.hash(),
-        shard: shard.to_string(),
-        trials: Vec::new(),
-        protocol,
-    };
+    let mut results = ResultsFile::start(protocol, shard);
     let list = results.protocol.trial_list();
     let mine: Vec<usize> = (0..list.len()).filter(|&i| shard.holds(i)).collect();
     print!("{}", record::header(&results));

@@ -1,6 +1,6 @@
-//! Results files of `farsight bench nav`, so that what a number was measured
-//! under is decided before it is measured and travels with it (issue 20,
-//! item 7). No paper protocol is implemented here; this is the yardstick's
+//! Results files of `farsight bench nav` and `farsight bench fitam`, so
+//! that what a number was measured under is decided before it is measured
+//! and travels with it (issue 20, item 7). No paper protocol is implemented here; this is the yardstick's
 //! bookkeeping for all of them (FITAM section V, LRN section IV, POVNav
 //! section 5 and HIP section V each fix their trials before running them).
 //!
@@ -13,9 +13,11 @@
 //!   K/N`: trial i belongs to shard (i mod N) + 1, so every shard gets a mix
 //!   of scenarios and methods and the split needs nothing but the
 //!   arguments).
-//! - [`ResultsFile`] (`--out FILE.json`): the commit, the protocol and its
-//!   hash, the shard, and a [`TrialRecord`] per trial.
-//! - [`merge`] (`farsight bench nav-merge`): shard files into one, refused
+//! - [`Results`] (`--out FILE.json`): the commit, the protocol and its
+//!   hash, the shard, and a record per trial; generic over the protocol
+//!   ([`Decided`]) and the trial ([`Keyed`]), so each benchmark's files are
+//!   checked and merged the same way. [`ResultsFile`] is `bench nav`'s.
+//! - [`merge`] (`farsight bench nav-merge`, `fitam-merge`): shard files into one, refused
 //!   when any file differs from the first in its commit, a version, any
 //!   trial parameter or the hash (the error names the file and the field),
 //!   or when a trial is missing, duplicated or not in the protocol.
@@ -24,7 +26,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use serde::{Deserialize, Serialize};
+use serde::{de::DeserializeOwned, Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 use std::fmt;
@@ -105,17 +107,63 @@ impl fmt::Display for TrialKey {
     }
 }
 
-impl Protocol {
+/// A benchmark's protocol: everything decided before its trials run.
+pub trait Decided: Serialize + Clone {
+    /// What names one trial.
+    type Key: Ord + Clone + fmt::Display;
+
+    /// Each field a merge compares, with the name its error gives it.
+    fn fields(&self) -> Vec<(&'static str, String)>;
+
+    /// Every trial, in the order an unsharded run drives them.
+    fn trial_list(&self) -> Vec<Self::Key>;
+
     /// SHA-256 (hex) of the protocol's JSON: fields in their declared
     /// order, floats in their shortest round-trip form, so the same
     /// protocol hashes the same on any machine.
-    pub fn hash(&self) -> String {
+    fn hash(&self) -> String {
         sha256_hex(&serde_json::to_vec(self).expect("a protocol serialises"))
     }
+}
 
-    /// Every trial, in the order an unsharded run drives them: per
-    /// scenario, per method, seeds 1..=trials.
-    pub fn trial_list(&self) -> Vec<TrialKey> {
+/// A trial's record, named by its key in the protocol's list.
+pub trait Keyed {
+    type Key;
+    fn key(&self) -> Self::Key;
+}
+
+impl Decided for Protocol {
+    type Key = TrialKey;
+
+    fn fields(&self) -> Vec<(&'static str, String)> {
+        vec![
+            (
+                "protocol.versions.world_generator",
+                self.versions.world_generator.to_string(),
+            ),
+            (
+                "protocol.versions.intervention_rule",
+                self.versions.intervention_rule.to_string(),
+            ),
+            (
+                "protocol.versions.time_limit_rule",
+                self.versions.time_limit_rule.to_string(),
+            ),
+            ("protocol.scenarios", format!("{:?}", self.scenarios)),
+            ("protocol.trials", self.trials.to_string()),
+            (
+                "protocol.time_limit_x / max_time_s",
+                format!("{} / {:?}", self.time_limit_x, self.max_time_s),
+            ),
+            (
+                "protocol.methods (names, graphs, graph hashes)",
+                format!("{:?}", self.methods),
+            ),
+        ]
+    }
+
+    /// Per scenario, per method, seeds 1..=trials.
+    fn trial_list(&self) -> Vec<TrialKey> {
         let mut out = Vec::new();
         for s in &self.scenarios {
             for m in &self.methods {
@@ -132,7 +180,7 @@ impl Protocol {
     }
 }
 
-fn sha256_hex(bytes: &[u8]) -> String {
+pub fn sha256_hex(bytes: &[u8]) -> String {
     format!("{:x}", Sha256::digest(bytes))
 }
 
@@ -200,15 +248,19 @@ pub struct TrialRecord {
     pub frames_without_command: u64,
 }
 
-impl TrialRecord {
-    pub fn key(&self) -> TrialKey {
+impl Keyed for TrialRecord {
+    type Key = TrialKey;
+
+    fn key(&self) -> TrialKey {
         TrialKey {
             scenario: self.scenario.clone(),
             method: self.method.clone(),
             seed: self.seed,
         }
     }
+}
 
+impl TrialRecord {
     pub fn reached(&self) -> bool {
         self.outcome == "reached"
     }
@@ -216,17 +268,36 @@ impl TrialRecord {
 
 /// A results file: one run, or one shard of it, or shards merged.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ResultsFile {
+pub struct Results<P, T> {
     pub format: u32,
     /// `git rev-parse HEAD` where the run was built from, or "unknown".
     pub commit: String,
     /// Whether the work tree had changes to tracked files (`git status`).
     pub dirty: bool,
-    pub protocol: Protocol,
+    pub protocol: P,
     pub protocol_hash: String,
     /// `K/N`, or `merged 1..N/N`.
     pub shard: String,
-    pub trials: Vec<TrialRecord>,
+    pub trials: Vec<T>,
+}
+
+/// `farsight bench nav`'s results.
+pub type ResultsFile = Results<Protocol, TrialRecord>;
+
+impl<P: Decided, T> Results<P, T> {
+    /// An empty file for a run of `shard` of `protocol`, at this commit.
+    pub fn start(protocol: P, shard: Shard) -> Self {
+        let (commit, dirty) = git_commit();
+        Self {
+            format: RESULTS_FORMAT,
+            commit,
+            dirty,
+            protocol_hash: protocol.hash(),
+            shard: shard.to_string(),
+            trials: Vec::new(),
+            protocol,
+        }
+    }
 }
 
 /// The commit this run is of, and whether tracked files differ from it.
@@ -263,11 +334,11 @@ pub struct NavMergeArgs {
 
 /// Reads, merges and prints the table of shard files.
 pub fn run_merge(a: NavMergeArgs) -> Result<()> {
-    let files = a
+    let files: Vec<(PathBuf, ResultsFile)> = a
         .files
         .iter()
         .map(|p| Ok((p.clone(), read(p)?)))
-        .collect::<Result<Vec<_>>>()?;
+        .collect::<Result<_>>()?;
     let merged = merge(&files)?;
     print!("{}", table(&merged));
     if let Some(out) = &a.out {
@@ -276,13 +347,13 @@ pub fn run_merge(a: NavMergeArgs) -> Result<()> {
     Ok(())
 }
 
-pub fn read(path: &Path) -> Result<ResultsFile> {
+pub fn read<R: DeserializeOwned>(path: &Path) -> Result<R> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     serde_json::from_str(&text).with_context(|| format!("{}: not a results file", path.display()))
 }
 
-pub fn write(path: &Path, file: &ResultsFile) -> Result<()> {
+pub fn write<R: Serialize>(path: &Path, file: &R) -> Result<()> {
     let text = serde_json::to_string_pretty(file)?;
     std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))
 }
@@ -291,64 +362,33 @@ pub fn write(path: &Path, file: &ResultsFile) -> Result<()> {
 /// format, commit, versions, trial parameters, graph hashes and protocol
 /// hash, and have the same shard count; together they must hold each trial
 /// of the protocol's list exactly once. Trials come out in the list's order.
-pub fn merge(files: &[(PathBuf, ResultsFile)]) -> Result<ResultsFile> {
+pub fn merge<P, T>(files: &[(PathBuf, Results<P, T>)]) -> Result<Results<P, T>>
+where
+    P: Decided,
+    T: Keyed<Key = P::Key> + Clone,
+{
     let Some((first_path, first)) = files.first() else {
         bail!("no results files to merge");
     };
-    let shard_of = |path: &Path, f: &ResultsFile| -> Result<Shard> {
+    let shard_of = |path: &Path, f: &Results<P, T>| -> Result<Shard> {
         f.shard
             .parse()
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
     };
     let count = shard_of(first_path, first)?.count;
-    for (path, f) in files {
-        let p = (&f.protocol, &first.protocol);
-        let fields: [(&str, String, String); 10] = [
-            ("format", f.format.to_string(), first.format.to_string()),
-            ("commit", f.commit.clone(), first.commit.clone()),
-            (
-                "protocol.versions.world_generator",
-                p.0.versions.world_generator.to_string(),
-                p.1.versions.world_generator.to_string(),
-            ),
-            (
-                "protocol.versions.intervention_rule",
-                p.0.versions.intervention_rule.to_string(),
-                p.1.versions.intervention_rule.to_string(),
-            ),
-            (
-                "protocol.versions.time_limit_rule",
-                p.0.versions.time_limit_rule.to_string(),
-                p.1.versions.time_limit_rule.to_string(),
-            ),
-            (
-                "protocol.scenarios",
-                format!("{:?}", p.0.scenarios),
-                format!("{:?}", p.1.scenarios),
-            ),
-            (
-                "protocol.trials",
-                p.0.trials.to_string(),
-                p.1.trials.to_string(),
-            ),
-            (
-                "protocol.time_limit_x / max_time_s",
-                format!("{} / {:?}", p.0.time_limit_x, p.0.max_time_s),
-                format!("{} / {:?}", p.1.time_limit_x, p.1.max_time_s),
-            ),
-            (
-                "protocol.methods (names, graphs, graph hashes)",
-                format!("{:?}", p.0.methods),
-                format!("{:?}", p.1.methods),
-            ),
-            (
-                "protocol_hash",
-                f.protocol_hash.clone(),
-                first.protocol_hash.clone(),
-            ),
+    let fields = |f: &Results<P, T>| {
+        let mut v = vec![
+            ("format", f.format.to_string()),
+            ("commit", f.commit.clone()),
         ];
-        for (field, this, want) in fields {
-            if this != want {
+        v.extend(f.protocol.fields());
+        v.push(("protocol_hash", f.protocol_hash.clone()));
+        v
+    };
+    let want = fields(first);
+    for (path, f) in files {
+        for ((field, this), (_, want)) in fields(f).into_iter().zip(&want) {
+            if &this != want {
                 bail!(
                     "{}: {field} is {this}, but {} has {want}: results measured under different code or protocols are not merged",
                     path.display(),
@@ -366,7 +406,7 @@ pub fn merge(files: &[(PathBuf, ResultsFile)]) -> Result<ResultsFile> {
         }
     }
     let list = first.protocol.trial_list();
-    let mut found: BTreeMap<TrialKey, (&Path, &TrialRecord)> = BTreeMap::new();
+    let mut found: BTreeMap<P::Key, (&Path, &T)> = BTreeMap::new();
     for (path, f) in files {
         for t in &f.trials {
             let key = t.key();
@@ -400,7 +440,7 @@ pub fn merge(files: &[(PathBuf, ResultsFile)]) -> Result<ResultsFile> {
             if missing.len() > 5 { ", ..." } else { "" }
         );
     }
-    Ok(ResultsFile {
+    Ok(Results {
         shard: format!("merged from {} files of {count} shards", files.len()),
         trials: list.iter().map(|k| found[k].1.clone()).collect(),
         dirty: files.iter().any(|(_, f)| f.dirty),

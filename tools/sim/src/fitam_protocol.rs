@@ -44,6 +44,13 @@ use farsight_costmap_fusion::swath::{for_each_swath_cell, PolarGeometry};
 use farsight_interfaces::msg::Stamp;
 use farsight_subgoal_selection::dstar_lite::{astar, CostGrid, DStarLite};
 
+/// Version of this module's rules (the agent's sensing, travel and failure
+/// rules, the problem sampler, the cost metric and the paired statistics),
+/// hashed into every `farsight bench fitam` result: change it whenever any
+/// of them changes what a trial measures.
+/// 1: as the module comment says; D* Lite may not cut a blocked cell's corner.
+pub const AGENT_RULES_VERSION: u32 = 1;
+
 /// One row of Table I.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Row {
