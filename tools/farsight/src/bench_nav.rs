@@ -320,6 +320,8 @@ pub fn run(a: NavArgs) -> Result<()> {
                     collisions: s.collisions,
                     interventions: s.interventions,
                     final_goal_distance_m: s.final_goal_distance_m,
+                    straight_line_m: (scenario.goal[0] - scenario.start[0])
+                        .hypot(scenario.goal[1] - scenario.start[1]),
                     expert_time_s: expert_s,
                     time_limit_s: limit,
                     frames: t.frames,

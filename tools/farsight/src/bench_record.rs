@@ -34,7 +34,8 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 /// Version of the results file's layout.
-pub const RESULTS_FORMAT: u32 = 1;
+/// 2: trials record the start-goal straight-line distance.
+pub const RESULTS_FORMAT: u32 = 2;
 
 /// The versions of the rules a result depends on.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -239,6 +240,10 @@ pub struct TrialRecord {
     pub collisions: u32,
     pub interventions: u32,
     pub final_goal_distance_m: f64,
+    /// Start to goal in a straight line (interventions per km are per km
+    /// of this, issue 20 item 6).
+    #[serde(default)]
+    pub straight_line_m: f64,
     /// The expert's time on the same world, start and goal (`None`: no
     /// expert path).
     pub expert_time_s: Option<f64>,
@@ -467,12 +472,12 @@ pub fn header(f: &ResultsFile) -> String {
     )
 }
 
-pub const TABLE_HEAD: &str = "| scenario | method | success [95% CI] | path m | time s | cost s | time / expert | interventions |\n|---|---|---|---|---|---|---|---|\n";
+pub const TABLE_HEAD: &str = "| scenario | method | success [95% CI] | path m | time s | cost s | time / expert | interventions | interventions / km |\n|---|---|---|---|---|---|---|---|---|\n";
 
 /// A cell's row: success rate with a 95% Wilson interval; path length,
 /// time, traversal cost and time relative to the expert over the
 /// successful trials; interventions over all (means with 95% normal
-/// intervals).
+/// intervals), and per km of the trials' summed straight-line distances.
 pub fn row(scenario: &str, method: &str, runs: &[&TrialRecord]) -> String {
     let ok: Vec<&&TrialRecord> = runs.iter().filter(|t| t.reached()).collect();
     let (lo, hi) = wilson(ok.len(), runs.len());
@@ -480,7 +485,7 @@ pub fn row(scenario: &str, method: &str, runs: &[&TrialRecord]) -> String {
         ok.iter().filter_map(|t| f(t)).collect()
     };
     format!(
-        "| {scenario} | {method} | {:.0}% [{:.0}, {:.0}] | {} | {} | {} | {} | {} |\n",
+        "| {scenario} | {method} | {:.0}% [{:.0}, {:.0}] | {} | {} | {} | {} | {} | {} |\n",
         100.0 * ok.len() as f64 / runs.len().max(1) as f64,
         100.0 * lo,
         100.0 * hi,
@@ -495,7 +500,19 @@ pub fn row(scenario: &str, method: &str, runs: &[&TrialRecord]) -> String {
                 .collect::<Vec<_>>(),
             0
         ),
+        per_km(runs),
     )
+}
+
+/// Interventions per km of straight-line start-goal distance over `runs`.
+fn per_km(runs: &[&TrialRecord]) -> String {
+    let km: f64 = runs.iter().map(|t| t.straight_line_m).sum::<f64>() / 1000.0;
+    if km > 0.0 {
+        let n: u32 = runs.iter().map(|t| t.interventions).sum();
+        format!("{:.1}", n as f64 / km)
+    } else {
+        "-".into()
+    }
 }
 
 /// The whole table of a file: header, then a row per scenario and method
@@ -587,6 +604,7 @@ mod tests {
             collisions: 0,
             interventions: (k.seed % 2) as u32,
             final_goal_distance_m: 1.0,
+            straight_line_m: 250.0,
             expert_time_s: Some(35.0),
             time_limit_s: 105.0,
             frames: 400,
@@ -638,6 +656,8 @@ mod tests {
         }
         let t = table(&whole);
         assert!(t.contains("| bug-trap | a | 67% [21, 94] |"), "{t}");
+        // Seeds 1 and 3 needed an intervention each: 2 per 0.75 km.
+        assert!(t.contains("| 1 ± 1 | 2.7 |"), "{t}");
         assert!(t.contains(&whole.protocol_hash[..16]), "{t}");
     }
 

@@ -7,7 +7,8 @@
 //! | `bush-wall` | LRN | open field 82 m, a band of bushes across the straight line |
 //! | `road-forest` | FITAM Fig. 1 | forest, a road 60 m to the side that leads to the goal |
 //! | `obstacle-field-1`..`5` | POVNav Env1-Env5 | trees on a jittered grid, gaps 3 m down to 1 m |
-//! | `random` | FITAM | land-cover noise: fields, grass, forest with trees, water, rocks, roads; rolling hills |
+//! | `random` | FITAM | land-cover noise: fields, grass, forest with trees, water, rocks, roads; rolling hills; 400 m, goal about 340 m away |
+//! | `random-long` | issue 20 | the same on 1.5 km, goal about 1.84 km away (long range) |
 
 use crate::rng::SplitMix64;
 use crate::world::{Cover, Obstacle, World};
@@ -28,8 +29,9 @@ pub struct Scenario {
     pub goal: [f64; 2],
 }
 
-/// Every named scenario (`random` takes its size from [`random_world`]).
-pub const NAMES: [&str; 10] = [
+/// Every named scenario (`random` and `random-long` take their sizes from
+/// [`random_world`]).
+pub const NAMES: [&str; 11] = [
     "bug-trap",
     "bridge",
     "bush-wall",
@@ -40,6 +42,7 @@ pub const NAMES: [&str; 10] = [
     "obstacle-field-4",
     "obstacle-field-5",
     "random",
+    "random-long",
 ];
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -146,6 +149,12 @@ pub fn scenario(name: &str, seed: u64) -> Result<Scenario, UnknownScenario> {
             }
         }
         "random" => random_world(seed, 400),
+        // Long range (issue 20, item 6): 1.5 km worlds, the goal 1.84 km
+        // from the start in a straight line.
+        "random-long" => Scenario {
+            name: "random-long".into(),
+            ..random_world(seed, 1500)
+        },
         _ => return Err(UnknownScenario(name.into())),
     };
     Ok(s)
@@ -264,6 +273,16 @@ pub fn random_world(seed: u64, size: usize) -> Scenario {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_long_range_worlds_put_the_goal_between_one_and_two_km_away() {
+        for seed in 1..=3 {
+            let s = scenario("random-long", seed).unwrap();
+            assert_eq!(s.name, "random-long");
+            let d = (s.goal[0] - s.start[0]).hypot(s.goal[1] - s.start[1]);
+            assert!((1000.0..=2000.0).contains(&d), "seed {seed}: {d} m");
+        }
+    }
 
     #[test]
     fn named_scenarios_have_their_layouts() {
