@@ -500,9 +500,10 @@ impl DStarLite {
         self.start = start;
     }
 
-    /// Cell `(x, y)` now costs `cost_s_per_m`. Only the edges into it change,
-    /// so only its neighbours (and itself, whose out-edges may be blocked)
-    /// are updated. Returns whether anything changed.
+    /// Cell `(x, y)` now costs `cost_s_per_m`. The edges into it change,
+    /// and (when it turns blocked or free) the diagonal edges past its
+    /// corners; every one of them leaves one of its eight neighbours, so
+    /// only those (and itself) are updated. Returns whether anything changed.
     pub fn set_cost(&mut self, x: usize, y: usize, cost_s_per_m: f32) -> bool {
         self.set_costs([(x, y, cost_s_per_m)]) == 1
     }

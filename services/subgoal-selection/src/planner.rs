@@ -121,10 +121,10 @@ pub struct WorldPlanner {
     /// Costs as the costmap gave them, before inflation.
     base: Vec<f32>,
     /// Per cell: lethal base cells within the inflation radius.
-    lethal_near: Vec<u16>,
+    lethal_near: Vec<u32>,
     /// Per cell: lethal base cells within the inscribed radius; `None` when
     /// that radius reaches no neighbour (a lethal cell blocks only itself).
-    lethal_inscribed: Option<Vec<u16>>,
+    lethal_inscribed: Option<Vec<u32>>,
     /// Cell offsets within the inflation radius (the cell itself included),
     /// each with whether it is within the inscribed radius too.
     disk: Vec<(i64, i64, bool)>,
@@ -232,7 +232,7 @@ impl WorldPlanner {
             let old = std::mem::replace(&mut self.base[i], c.cost_s_per_m);
             touched.push((x, y));
             if lethal(old) != lethal(c.cost_s_per_m) {
-                let count = |n: &mut u16| {
+                let count = |n: &mut u32| {
                     if lethal(c.cost_s_per_m) {
                         *n += 1;
                     } else {

@@ -46,6 +46,9 @@ pub struct Versions {
     pub intervention_rule: u32,
     /// `farsight_sim::expert::TIME_LIMIT_RULE_VERSION`.
     pub time_limit_rule: u32,
+    /// `farsight_sim::robot::ROBOT_MODEL_VERSION`.
+    #[serde(default)]
+    pub robot_model: u32,
 }
 
 impl Versions {
@@ -55,6 +58,7 @@ impl Versions {
             world_generator: farsight_sim::scenario::WORLD_GENERATOR_VERSION,
             intervention_rule: farsight_sim::episode::INTERVENTION_RULE_VERSION,
             time_limit_rule: farsight_sim::expert::TIME_LIMIT_RULE_VERSION,
+            robot_model: farsight_sim::robot::ROBOT_MODEL_VERSION,
         }
     }
 }
@@ -149,6 +153,10 @@ impl Decided for Protocol {
             (
                 "protocol.versions.time_limit_rule",
                 self.versions.time_limit_rule.to_string(),
+            ),
+            (
+                "protocol.versions.robot_model",
+                self.versions.robot_model.to_string(),
             ),
             ("protocol.scenarios", format!("{:?}", self.scenarios)),
             ("protocol.trials", self.trials.to_string()),
@@ -281,7 +289,8 @@ pub struct Results<P, T> {
     pub dirty: bool,
     pub protocol: P,
     pub protocol_hash: String,
-    /// `K/N`, or `merged 1..N/N`.
+    /// `K/N`; a merge of all N shards is the whole run, `1/1`, so it can
+    /// be read and merged again like an unsharded run's file.
     pub shard: String,
     pub trials: Vec<T>,
 }
@@ -446,7 +455,7 @@ where
         );
     }
     Ok(Results {
-        shard: format!("merged from {} files of {count} shards", files.len()),
+        shard: Shard::ALL.to_string(),
         trials: list.iter().map(|k| found[k].1.clone()).collect(),
         dirty: files.iter().any(|(_, f)| f.dirty),
         ..first.clone()
@@ -460,13 +469,14 @@ pub fn header(f: &ResultsFile) -> String {
         .max_time_s
         .map_or(String::new(), |c| format!(", at most {c:.0} s"));
     format!(
-        "navigation benchmark: {} seeded trials per cell, each limited to {}x the expert's time on its world{cap}, the shipped graphs in one process\nprotocol {} (world generator v{}, intervention rule v{}, time-limit rule v{}), commit {}{}\n",
+        "navigation benchmark: {} seeded trials per cell, each limited to {}x the expert's time on its world{cap}, the shipped graphs in one process\nprotocol {} (world generator v{}, intervention rule v{}, time-limit rule v{}, robot model v{}), commit {}{}\n",
         p.trials,
         p.time_limit_x,
         &f.protocol_hash[..16.min(f.protocol_hash.len())],
         p.versions.world_generator,
         p.versions.intervention_rule,
         p.versions.time_limit_rule,
+        p.versions.robot_model,
         f.commit,
         if f.dirty { " (with uncommitted changes)" } else { "" },
     )
@@ -653,6 +663,9 @@ mod tests {
             let merged = merge(files).unwrap();
             assert_eq!(merged.trials, whole.trials);
             assert_eq!(table(&merged), table(&whole));
+            // A merged file is a whole run: it merges again on its own.
+            let again = merge(&[(PathBuf::from("merged.json"), merged.clone())]).unwrap();
+            assert_eq!(again, merged);
         }
         let t = table(&whole);
         assert!(t.contains("| bug-trap | a | 67% [21, 94] |"), "{t}");
@@ -745,6 +758,13 @@ mod tests {
             Protocol {
                 versions: Versions {
                     world_generator: p.versions.world_generator + 1,
+                    ..p.versions.clone()
+                },
+                ..p.clone()
+            },
+            Protocol {
+                versions: Versions {
+                    robot_model: p.versions.robot_model + 1,
                     ..p.versions.clone()
                 },
                 ..p.clone()

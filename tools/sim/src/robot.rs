@@ -1,10 +1,18 @@
 //! The simulated robot: a unicycle that follows velocity commands within
 //! its acceleration limits and the terrain's speed limit (FITAM's class
-//! speeds: a cell costing c s/m cannot be crossed faster than 1/c m/s), and
-//! stops against lethal cells (counted as collisions) instead of passing
-//! through them.
+//! speeds: a cell costing c s/m cannot be crossed faster than 1/c m/s).
+//! Its disc footprint never enters a lethal cell: head-on it stops, at a
+//! glancing contact it slides along the obstacle (both counted as
+//! collisions).
 
 use crate::world::World;
+
+/// Version of the robot model (footprint, contact and speed rules), hashed
+/// into every `farsight bench nav` result: change it whenever the same
+/// commands would drive a different track.
+/// 1: a disc footprint that stops head-on and slides at a glancing
+/// contact (issue 20; before, five points sampled on the body stopped it).
+pub const ROBOT_MODEL_VERSION: u32 = 1;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RobotLimits {
