@@ -37,14 +37,14 @@ pub enum BenchCommand {
     Nav(NavArgs),
     /// Merges `bench nav --shard K/N --out FILE.json` files and prints the
     /// table of the whole run; refuses mixed versions, hashes or commits.
-    NavMerge(crate::bench_record::NavMergeArgs),
+    NavMerge(crate::bench_record::MergeArgs),
     /// FITAM's own protocol (section V, Table I): a kinematic sense-plan-act
     /// agent on 5 x 5 km worlds, paired % improved and % cost difference
     /// against no far field.
     Fitam(crate::bench_fitam::FitamArgs),
     /// Merges `bench fitam --shard K/N --out FILE.json` files and prints the
     /// table of the whole run; refuses mixed versions, hashes or commits.
-    FitamMerge(crate::bench_fitam::FitamMergeArgs),
+    FitamMerge(crate::bench_record::MergeArgs),
     /// What `farsight record` sustains writing 1280x720 RGB frames to disk.
     Recorder(crate::bench_recorder::RecorderArgs),
     /// (internal) the receiving side of one cell of the transport benchmark.

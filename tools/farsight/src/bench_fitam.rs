@@ -327,34 +327,14 @@ fn rows_of(f: &FitamResults) -> Result<Vec<Row>> {
         .collect()
 }
 
-/// `farsight bench fitam-merge`.
-#[derive(Args)]
-pub struct FitamMergeArgs {
-    /// Results files of the shards (`farsight bench fitam --shard K/N --out
-    /// FILE.json`).
-    #[arg(required = true)]
-    pub files: Vec<PathBuf>,
-    /// Write the merged results here.
-    #[arg(long)]
-    pub out: Option<PathBuf>,
-}
-
-/// Reads and merges shard files and prints the table of the whole run.
-pub fn run_merge(a: FitamMergeArgs) -> Result<()> {
-    let files: Vec<(PathBuf, FitamResults)> = a
-        .files
-        .iter()
-        .map(|p| Ok((p.clone(), record::read(p)?)))
-        .collect::<Result<_>>()?;
-    let merged = record::merge(&files)?;
+/// `farsight bench fitam-merge`: prints the table of the whole run.
+pub fn run_merge(a: record::MergeArgs) -> Result<()> {
+    let merged: FitamResults = a.merge()?;
     print!(
         "{}\n{}",
         header(&merged),
         table(&merged.trials, &rows_of(&merged)?)
     );
-    if let Some(out) = &a.out {
-        record::write(out, &merged)?;
-    }
     Ok(())
 }
 

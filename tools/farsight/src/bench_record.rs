@@ -334,11 +334,11 @@ pub fn git_commit() -> (String, bool) {
     }
 }
 
-/// `farsight bench nav-merge`.
+/// `farsight bench nav-merge` and `fitam-merge`.
 #[derive(Args)]
-pub struct NavMergeArgs {
-    /// Results files of the shards (`farsight bench nav --shard K/N --out
-    /// FILE.json`).
+pub struct MergeArgs {
+    /// Results files of the shards (`farsight bench nav|fitam --shard K/N
+    /// --out FILE.json`).
     #[arg(required = true)]
     pub files: Vec<PathBuf>,
     /// Write the merged results here.
@@ -346,18 +346,30 @@ pub struct NavMergeArgs {
     pub out: Option<PathBuf>,
 }
 
-/// Reads, merges and prints the table of shard files.
-pub fn run_merge(a: NavMergeArgs) -> Result<()> {
-    let files: Vec<(PathBuf, ResultsFile)> = a
-        .files
-        .iter()
-        .map(|p| Ok((p.clone(), read(p)?)))
-        .collect::<Result<_>>()?;
-    let merged = merge(&files)?;
-    print!("{}", table(&merged));
-    if let Some(out) = &a.out {
-        write(out, &merged)?;
+impl MergeArgs {
+    /// Reads and merges the files, and writes the merge to `--out`.
+    pub fn merge<P, T>(&self) -> Result<Results<P, T>>
+    where
+        P: Decided + DeserializeOwned,
+        T: Keyed<Key = P::Key> + Clone + Serialize + DeserializeOwned,
+    {
+        let files: Vec<(PathBuf, Results<P, T>)> = self
+            .files
+            .iter()
+            .map(|p| Ok((p.clone(), read(p)?)))
+            .collect::<Result<_>>()?;
+        let merged = merge(&files)?;
+        if let Some(out) = &self.out {
+            write(out, &merged)?;
+        }
+        Ok(merged)
     }
+}
+
+/// `farsight bench nav-merge`: prints the table of the whole run.
+pub fn run_merge(a: MergeArgs) -> Result<()> {
+    let merged: ResultsFile = a.merge()?;
+    print!("{}", table(&merged));
     Ok(())
 }
 
