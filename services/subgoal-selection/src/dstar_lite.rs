@@ -202,6 +202,35 @@ pub fn astar(
     None
 }
 
+/// Every cell's cost to reach `goal` (seconds, as [`CostGrid::step_cost`]
+/// sums them; infinite where no path leads): Dijkstra outward from the goal
+/// over reversed steps. The simulator's operator judges progress by it, as a
+/// person who knows the map sees whether the robot is getting closer.
+pub fn cost_to_go(grid: &CostGrid, goal: (usize, usize)) -> Vec<f64> {
+    let idx = |c: (usize, usize)| c.1 * grid.width + c.0;
+    let mut g = vec![f64::INFINITY; grid.width * grid.height];
+    if goal.0 >= grid.width || goal.1 >= grid.height {
+        return g;
+    }
+    let mut open = BinaryHeap::new();
+    g[idx(goal)] = 0.0;
+    open.push(Entry(Key(0.0, 0.0), idx(goal)));
+    while let Some(Entry(Key(d, _), i)) = open.pop() {
+        if d > g[i] {
+            continue; // stale entry
+        }
+        let b = (i % grid.width, i / grid.width);
+        for a in grid.neighbours(b) {
+            let cand = d + grid.step_cost(a, b);
+            if cand < g[idx(a)] {
+                g[idx(a)] = cand;
+                open.push(Entry(Key(cand, 0.0), idx(a)));
+            }
+        }
+    }
+    g
+}
+
 /// D* Lite's priority queue: each vertex at most once, ordered by its key
 /// and then its index, with every vertex's place in the heap kept so that
 /// re-keying or removing it happens in place. (A heap that leaves stale
@@ -684,6 +713,34 @@ mod tests {
                 assert_eq!(one.open.heap.len(), all.open.heap.len());
             }
         }
+    }
+
+    #[test]
+    fn cost_to_go_is_the_astar_cost_from_every_cell() {
+        let mut rng = Lcg(5);
+        for _ in 0..5 {
+            let grid = random_grid(&mut rng, 25, 18);
+            let goal = (20, 12);
+            let mut grid = grid;
+            grid.set(goal.0, goal.1, 1.0);
+            let field = cost_to_go(&grid, goal);
+            assert_eq!(field[goal.1 * 25 + goal.0], 0.0);
+            let mut reachable = 0;
+            for y in 0..18 {
+                for x in 0..25 {
+                    let want = astar(&grid, (x, y), goal, 0.0).map_or(f64::INFINITY, |p| p.1);
+                    let got = field[y * 25 + x];
+                    assert!(
+                        (got - want).abs() < 1e-9 || (got.is_infinite() && want.is_infinite()),
+                        "({x}, {y}): {got} vs A* {want}"
+                    );
+                    reachable += usize::from(got.is_finite());
+                }
+            }
+            assert!(reachable > 100, "the grids are mostly open: {reachable}");
+        }
+        let off = cost_to_go(&CostGrid::new(4, 4, 1.0, 1.0), (9, 0));
+        assert!(off.iter().all(|c| c.is_infinite()), "a goal off the grid");
     }
 
     #[test]

@@ -152,6 +152,12 @@ pub struct NavArgs {
     /// expert-relative one (and the limit when there is no expert path).
     #[arg(long)]
     pub max_time_s: Option<f64>,
+    /// When an operator steps in: `carry-back` (stuck in place: carried 3 m
+    /// back along the track) or `operator` (LRN section IV: no progress by
+    /// the expert's cost to go for 20 s: turned to face the goal; 20 s more:
+    /// walked toward it). Recorded in the protocol.
+    #[arg(long, default_value = "carry-back", value_parser = farsight_sim::episode::InterventionRule::named)]
+    pub intervention_rule: farsight_sim::episode::InterventionRule,
     /// Write each trial's poses (`<scenario>-<method>-<seed>.csv`, as
     /// `farsight-sim run` writes `poses.csv`) into this folder, and a
     /// top-down picture of each trial that did not reach the goal or needed

@@ -62,7 +62,7 @@ use crate::bench_record::{
 use crate::graph::Graph;
 use crate::lockstep::{self, Trial};
 use anyhow::{anyhow, Context, Result};
-use farsight_sim::episode::{EpisodeConfig, Outcome};
+use farsight_sim::episode::{EpisodeConfig, InterventionRule, Outcome};
 use farsight_sim::expert::{expert_plan, ExpertPlan, TimeLimitRule};
 use farsight_sim::render::{map_picture, MapMarks};
 use farsight_sim::scenario::Scenario;
@@ -87,7 +87,13 @@ pub const METHODS: [(&str, &str); 8] = [
 /// or `perception/<name>/navigability` topic written outside the graph, the
 /// oracle's navigability and far field when the graph reads them from
 /// outside; the simulator's defaults otherwise (640x360 at 10 Hz).
-pub fn sim_options(graph: &Graph, scenario: &str, seed: u64, max_time_s: f64) -> SimOptions {
+pub fn sim_options(
+    graph: &Graph,
+    scenario: &str,
+    seed: u64,
+    max_time_s: f64,
+    intervention: InterventionRule,
+) -> SimOptions {
     let external: Vec<&str> = graph
         .topics
         .iter()
@@ -117,6 +123,7 @@ pub fn sim_options(graph: &Graph, scenario: &str, seed: u64, max_time_s: f64) ->
             .iter()
             .any(|t| t.starts_with("perception/") && t.ends_with("/navigability")),
         far_field_oracle: external.contains(&"bins/polar"),
+        intervention,
         ..defaults
     }
 }
@@ -127,11 +134,12 @@ pub fn trial(
     scenario: &str,
     seed: u64,
     max_time_s: f64,
+    intervention: InterventionRule,
     trace: Option<&Path>,
 ) -> Result<Trial> {
     lockstep::drive(
         graph,
-        &sim_options(graph, scenario, seed, max_time_s),
+        &sim_options(graph, scenario, seed, max_time_s, intervention),
         trace,
     )
 }
@@ -170,6 +178,13 @@ pub fn stuck_picture_png(
     Ok(farsight_imaging::encode_png(&header, &rgb)?)
 }
 
+/// The length of a polyline (m).
+fn path_length_m(path: &[[f64; 2]]) -> f64 {
+    path.windows(2)
+        .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
+        .sum()
+}
+
 /// Whether a trial gets a picture: it did not reach the goal, or an
 /// operator had to step in.
 pub fn stuck(t: &Trial) -> bool {
@@ -184,6 +199,7 @@ fn protocol(a: &NavArgs, rows: &[(String, String, PathBuf)]) -> Result<Protocol>
         trials: a.trials,
         time_limit_x: a.time_limit_x,
         max_time_s: a.max_time_s,
+        intervention_rule: a.intervention_rule.name().into(),
         methods: rows
             .iter()
             .map(|(m, shown, path)| MethodGraph::read(m, shown, path))
@@ -282,7 +298,7 @@ pub fn run(a: NavArgs) -> Result<()> {
                     time_limit(&scenario, &rule).map_err(|e| anyhow!("{sc} seed {seed}: {e}"))?;
                 let name = format!("{sc}-{m}-{seed}");
                 let csv = a.trace.as_ref().map(|d| d.join(format!("{name}.csv")));
-                let t = trial(graph, sc, seed, limit, csv.as_deref())?;
+                let t = trial(graph, sc, seed, limit, a.intervention_rule, csv.as_deref())?;
                 let s = &t.summary;
                 let expert_s = expert.as_ref().map(|e| e.time_s);
                 eprintln!(
@@ -323,6 +339,7 @@ pub fn run(a: NavArgs) -> Result<()> {
                     straight_line_m: (scenario.goal[0] - scenario.start[0])
                         .hypot(scenario.goal[1] - scenario.start[1]),
                     expert_time_s: expert_s,
+                    expert_distance_m: expert.as_ref().map(|e| path_length_m(&e.path)),
                     time_limit_s: limit,
                     frames: t.frames,
                     frames_without_command: t.late,

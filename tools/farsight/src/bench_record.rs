@@ -35,7 +35,9 @@ use std::str::FromStr;
 
 /// Version of the results file's layout.
 /// 2: trials record the start-goal straight-line distance.
-pub const RESULTS_FORMAT: u32 = 2;
+/// 3: the protocol names its intervention rule; trials record the
+/// expert's path length.
+pub const RESULTS_FORMAT: u32 = 3;
 
 /// The versions of the rules a result depends on.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -95,7 +97,15 @@ pub struct Protocol {
     pub time_limit_x: f64,
     /// ...and at most this (s), if given.
     pub max_time_s: Option<f64>,
+    /// `farsight_sim::episode::InterventionRule::name`: `carry-back` or
+    /// `operator` (LRN section IV).
+    #[serde(default = "carry_back")]
+    pub intervention_rule: String,
     pub methods: Vec<MethodGraph>,
+}
+
+fn carry_back() -> String {
+    "carry-back".into()
 }
 
 /// One trial of the list: scenario, method (row name) and seed.
@@ -164,6 +174,7 @@ impl Decided for Protocol {
                 "protocol.time_limit_x / max_time_s",
                 format!("{} / {:?}", self.time_limit_x, self.max_time_s),
             ),
+            ("protocol.intervention_rule", self.intervention_rule.clone()),
             (
                 "protocol.methods (names, graphs, graph hashes)",
                 format!("{:?}", self.methods),
@@ -255,6 +266,9 @@ pub struct TrialRecord {
     /// The expert's time on the same world, start and goal (`None`: no
     /// expert path).
     pub expert_time_s: Option<f64>,
+    /// The expert's path length (m), as LRN section IV judges distance.
+    #[serde(default)]
+    pub expert_distance_m: Option<f64>,
     /// The limit this trial ran under.
     pub time_limit_s: f64,
     pub frames: u64,
@@ -481,12 +495,13 @@ pub fn header(f: &ResultsFile) -> String {
         .max_time_s
         .map_or(String::new(), |c| format!(", at most {c:.0} s"));
     format!(
-        "navigation benchmark: {} seeded trials per cell, each limited to {}x the expert's time on its world{cap}, the shipped graphs in one process\nprotocol {} (world generator v{}, intervention rule v{}, time-limit rule v{}, robot model v{}), commit {}{}\n",
+        "navigation benchmark: {} seeded trials per cell, each limited to {}x the expert's time on its world{cap}, the shipped graphs in one process\nprotocol {} (world generator v{}, intervention rule v{} {}, time-limit rule v{}, robot model v{}), commit {}{}\n",
         p.trials,
         p.time_limit_x,
         &f.protocol_hash[..16.min(f.protocol_hash.len())],
         p.versions.world_generator,
         p.versions.intervention_rule,
+        p.intervention_rule,
         p.versions.time_limit_rule,
         p.versions.robot_model,
         f.commit,
@@ -494,7 +509,7 @@ pub fn header(f: &ResultsFile) -> String {
     )
 }
 
-pub const TABLE_HEAD: &str = "| scenario | method | success [95% CI] | path m | time s | cost s | time / expert | interventions | interventions / km |\n|---|---|---|---|---|---|---|---|---|\n";
+pub const TABLE_HEAD: &str = "| scenario | method | success [95% CI] | path m | time s | cost s | time / expert | distance / expert | interventions | interventions / km |\n|---|---|---|---|---|---|---|---|---|---|\n";
 
 /// A cell's row: success rate with a 95% Wilson interval; path length,
 /// time, traversal cost and time relative to the expert over the
@@ -507,7 +522,7 @@ pub fn row(scenario: &str, method: &str, runs: &[&TrialRecord]) -> String {
         ok.iter().filter_map(|t| f(t)).collect()
     };
     format!(
-        "| {scenario} | {method} | {:.0}% [{:.0}, {:.0}] | {} | {} | {} | {} | {} | {} |\n",
+        "| {scenario} | {method} | {:.0}% [{:.0}, {:.0}] | {} | {} | {} | {} | {} | {} | {} |\n",
         100.0 * ok.len() as f64 / runs.len().max(1) as f64,
         100.0 * lo,
         100.0 * hi,
@@ -515,6 +530,7 @@ pub fn row(scenario: &str, method: &str, runs: &[&TrialRecord]) -> String {
         mean_ci(&pick(|t| Some(t.time_s)), 0),
         mean_ci(&pick(|t| Some(t.traversal_cost_s)), 0),
         mean_ci(&pick(|t| t.expert_time_s.map(|e| t.time_s / e)), 2),
+        mean_ci(&pick(|t| t.expert_distance_m.map(|e| t.distance_m / e)), 2),
         mean_ci(
             &runs
                 .iter()
@@ -592,6 +608,7 @@ mod tests {
             trials: 3,
             time_limit_x: 3.0,
             max_time_s: None,
+            intervention_rule: "carry-back".into(),
             methods: vec![
                 MethodGraph {
                     name: "a".into(),
@@ -628,6 +645,7 @@ mod tests {
             final_goal_distance_m: 1.0,
             straight_line_m: 250.0,
             expert_time_s: Some(35.0),
+            expert_distance_m: Some(50.0),
             time_limit_s: 105.0,
             frames: 400,
             frames_without_command: 0,
@@ -683,6 +701,8 @@ mod tests {
         assert!(t.contains("| bug-trap | a | 67% [21, 94] |"), "{t}");
         // Seeds 1 and 3 needed an intervention each: 2 per 0.75 km.
         assert!(t.contains("| 1 ± 1 | 2.7 |"), "{t}");
+        // Bug-trap, a: seeds 1 and 2 reached, 79 and 80 m over the expert's 50.
+        assert!(t.contains("| 1.59 ± 0.02 | 1 ± 1 |"), "{t}");
         assert!(t.contains(&whole.protocol_hash[..16]), "{t}");
     }
 
@@ -704,6 +724,12 @@ mod tests {
             e.contains("s2.json") && e.contains("protocol.versions.intervention_rule"),
             "{e}"
         );
+
+        let mut operator = part(2);
+        operator.1.protocol.intervention_rule = "operator".into();
+        operator.1.protocol_hash = operator.1.protocol.hash();
+        let e = err(&[part(1), operator]);
+        assert!(e.contains("protocol.intervention_rule"), "{e}");
 
         let mut edited = part(2);
         edited.1.protocol_hash = "0123".into();

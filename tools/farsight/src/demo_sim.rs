@@ -260,7 +260,13 @@ pub fn run(d: SimDemo) -> Result<()> {
     };
     // The simulator provides what the graph reads from outside it.
     let loaded = crate::graph::Graph::load(&graph)?;
-    let sim_options = crate::bench_nav::sim_options(&loaded, &d.scenario, d.seed, d.max_time_s);
+    let sim_options = crate::bench_nav::sim_options(
+        &loaded,
+        &d.scenario,
+        d.seed,
+        d.max_time_s,
+        Default::default(),
+    );
     // The graph's nodes as processes under `farsight run` (each one's config
     // and log in `out`), all ready before the simulator's first frame.
     // The recorder reads every topic from its queue (each publisher feeds

@@ -1,20 +1,38 @@
 //! One drive through a scenario: the robot, its metrics and its track, as
 //! the demo and the navigation benchmark score them: reached (within the
 //! goal radius), time, distance, traversal cost, collisions and
-//! interventions (stuck, in the spirit of HIP's "trapped" rule: less than
-//! `stuck_min_progress_m` (1 m) from where it was 10 s earlier, or less
-//! than a quarter of what the terrain it stood on let it drive in those
-//! 10 s when that is less; a detour away from the goal is not being stuck;
-//! counted once per 10 s window). The terrain's share matters in bushes
-//! (10 s/m, so at most 0.1 m/s): a robot crossing them at their speed limit
-//! covers 1 m in 10 s, and a fixed 1 m rule carried it back mid-crossing.
+//! interventions. An intervention is acted on, as the papers' operators did
+//! (they count interventions and let the trial go on), by one of two rules
+//! ([`InterventionRule`]):
 //!
-//! An intervention is also acted on, as the papers' operators did (POVNav and
-//! HIP count interventions and let the trial go on): the robot is carried
-//! `intervention_backup_m` back along its own track, stopped, facing the way
-//! it drove there, so a method that wedged itself against a tree gets another
-//! go instead of spending the rest of the trial pinned. Set the distance to
-//! 0 to only count.
+//! - [`InterventionRule::CarryBack`] (the default; in the spirit of HIP's
+//!   "trapped" rule): the robot is stuck when it is less than
+//!   `stuck_min_progress_m` (1 m) from where it was 10 s earlier, or less
+//!   than a quarter of what the terrain it stood on let it drive in those
+//!   10 s when that is less (a detour away from the goal is not being
+//!   stuck; counted once per 10 s window). The terrain's share matters in
+//!   bushes (10 s/m, so at most 0.1 m/s): a robot crossing them at their
+//!   speed limit covers 1 m in 10 s, and a fixed 1 m rule carried it back
+//!   mid-crossing. The operator carries it `backup_m` back along its own
+//!   track, stopped, facing the way it drove there, so a method that wedged
+//!   itself against a tree gets another go.
+//! - [`InterventionRule::Operator`] (LRN section IV): "interventions were
+//!   taken when the system was not making progress ... performed by facing
+//!   the robot towards the goal and seeing if it will head in a reasonable
+//!   direction autonomously. If not, we would walk it towards the goal until
+//!   we saw a reasonable navigation plan." Progress is judged as a person
+//!   who knows the map judges it: by the expert's cost to go
+//!   ([`crate::expert::expert_cost_to_go`]). When the best cost to go the
+//!   robot has reached has not improved by `min_gain_s` for `patience_s`,
+//!   the operator turns it in place to face the goal (one intervention);
+//!   when another `patience_s` passes without progress, the operator walks
+//!   it down the expert's cost to go until it is `walk_gain_s` below the
+//!   best it had reached (part of the same intervention). A myopic robot in
+//!   a dead end is thus carried out of it, as LRN's operators did, where
+//!   the carry-back rule left it inside.
+//!
+//! Carried stretches are not driven: they add neither distance, time nor
+//! cost.
 
 use crate::render::PALETTE;
 
@@ -24,7 +42,9 @@ use crate::render::PALETTE;
 /// 1: less than 1 m in 10 s, carried 3 m back.
 /// 2: less than 1 m, or less than a quarter of what the terrain allowed
 /// when that is less, in 10 s; carried 3 m back (commit 60a2c7e).
-pub const INTERVENTION_RULE_VERSION: u32 = 2;
+/// 3: the rule is chosen per run ([`InterventionRule`], recorded beside
+/// this version); carry-back unchanged; LRN section IV's operator added.
+pub const INTERVENTION_RULE_VERSION: u32 = 3;
 use crate::robot::{Robot, RobotLimits};
 use crate::scenario::Scenario;
 
@@ -39,9 +59,70 @@ pub struct EpisodeConfig {
     /// robot allowed in the window (its speed limit, 1 / cost, times the
     /// time), when that is less.
     pub stuck_progress_fraction: f64,
-    /// How far back along the track an intervention carries the robot (m).
-    pub intervention_backup_m: f64,
+    /// When an operator steps in and what they do.
+    pub intervention: InterventionRule,
     pub limits: RobotLimits,
+}
+
+/// When an operator steps in and what they do (see the module comment).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum InterventionRule {
+    /// Stuck in place: carried `backup_m` back along the robot's own track
+    /// (0: only counted).
+    CarryBack { backup_m: f64 },
+    /// LRN section IV's operator: face the goal, then walk it.
+    Operator(OperatorRule),
+}
+
+impl Default for InterventionRule {
+    fn default() -> Self {
+        Self::CarryBack { backup_m: 3.0 }
+    }
+}
+
+impl InterventionRule {
+    /// The rule by its name in benchmark flags and results files:
+    /// `carry-back` or `operator`, with their default parameters.
+    pub fn named(name: &str) -> Result<Self, String> {
+        match name {
+            "carry-back" => Ok(Self::default()),
+            "operator" => Ok(Self::Operator(OperatorRule::default())),
+            _ => Err(format!(
+                "intervention rule {name:?}: expected \"carry-back\" (stuck in place: 3 m back along the track) or \"operator\" (LRN section IV: face the goal, then walk it)"
+            )),
+        }
+    }
+
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::CarryBack { .. } => "carry-back",
+            Self::Operator(_) => "operator",
+        }
+    }
+}
+
+/// LRN section IV's operator, in the expert's seconds of cost to go.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OperatorRule {
+    /// This long without a new best cost to go is not making progress (s).
+    pub patience_s: f64,
+    /// A new best must beat the old by this much (s of the expert's cost).
+    pub min_gain_s: f64,
+    /// A walk ends this far below the best cost to go reached (s).
+    pub walk_gain_s: f64,
+}
+
+impl Default for OperatorRule {
+    fn default() -> Self {
+        // 20 s: a robot that drives on at all gains a second of cost (2 m
+        // of grass) well inside it; 10 s of walk is 20 m of grass, past the
+        // place it stalled.
+        Self {
+            patience_s: 20.0,
+            min_gain_s: 1.0,
+            walk_gain_s: 10.0,
+        }
+    }
 }
 
 impl Default for EpisodeConfig {
@@ -52,7 +133,7 @@ impl Default for EpisodeConfig {
             stuck_window_s: 10.0,
             stuck_min_progress_m: 1.0,
             stuck_progress_fraction: 0.25,
-            intervention_backup_m: 3.0,
+            intervention: InterventionRule::default(),
             limits: RobotLimits::default(),
         }
     }
@@ -91,7 +172,21 @@ pub struct Episode {
     window_start: (f64, [f64; 2]),
     /// How far the terrain's speed limits let the robot drive since then.
     window_reach_m: f64,
+    /// The operator's state under [`InterventionRule::Operator`].
+    operator: Option<Operator>,
     outcome: Outcome,
+}
+
+/// What LRN's operator knows and remembers during a drive.
+struct Operator {
+    rule: OperatorRule,
+    /// The expert's cost to go per world cell (row-major).
+    cost_to_go_s: Vec<f64>,
+    /// The least cost to go the robot has stood at, and when it got there.
+    best_s: f64,
+    since_s: f64,
+    /// The robot was turned to face the goal and has made no progress since.
+    faced: bool,
 }
 
 impl Episode {
@@ -107,8 +202,27 @@ impl Episode {
             intervention_points: Vec::new(),
             window_start: (0.0, [robot.x_m, robot.y_m]),
             window_reach_m: 0.0,
+            operator: None,
             outcome: Outcome::Driving,
         }
+        .with_operator()
+    }
+
+    fn with_operator(mut self) -> Self {
+        if let InterventionRule::Operator(rule) = self.config.intervention {
+            let cost_to_go_s =
+                crate::expert::expert_cost_to_go(&self.scenario.world, self.scenario.goal);
+            let mut op = Operator {
+                rule,
+                cost_to_go_s,
+                best_s: f64::INFINITY,
+                since_s: 0.0,
+                faced: false,
+            };
+            op.best_s = op.at(&self.scenario.world, [self.robot.x_m, self.robot.y_m]);
+            self.operator = Some(op);
+        }
+        self
     }
 
     pub fn outcome(&self) -> Outcome {
@@ -137,7 +251,9 @@ impl Episode {
         }
         let d = self.goal_distance_m();
         let here = [self.robot.x_m, self.robot.y_m];
-        if self.time_s - self.window_start.0 >= self.config.stuck_window_s {
+        if self.operator.is_some() {
+            self.operator_step(here);
+        } else if self.time_s - self.window_start.0 >= self.config.stuck_window_s {
             let moved = (here[0] - self.window_start.1[0]).hypot(here[1] - self.window_start.1[1]);
             let needed = self
                 .config
@@ -166,7 +282,9 @@ impl Episode {
     /// the track. The collision count and distance are kept; the carried
     /// stretch is not driven, so it adds neither distance nor cost.
     fn carry_back(&mut self) {
-        let back = self.config.intervention_backup_m;
+        let InterventionRule::CarryBack { backup_m: back } = self.config.intervention else {
+            return;
+        };
         if back <= 0.0 || self.track.len() < 2 {
             return;
         }
@@ -186,16 +304,65 @@ impl Episode {
         } else {
             self.robot.yaw_rad
         };
+        self.carry_to([to[0], to[1], yaw]);
+    }
+
+    /// Puts the robot at `pose`, stopped; its counts are kept and the
+    /// carried stretch is neither driven nor costed.
+    fn carry_to(&mut self, pose: [f64; 3]) {
         let (collisions, distance_m, cost) = (
             self.robot.collisions,
             self.robot.distance_m,
             self.robot.traversal_cost_s,
         );
-        self.robot = Robot::at([to[0], to[1], yaw]);
+        self.robot = Robot::at(pose);
         self.robot.collisions = collisions;
         self.robot.distance_m = distance_m;
         self.robot.traversal_cost_s = cost;
-        self.track.push(to);
+        self.track.push([pose[0], pose[1]]);
+    }
+
+    /// LRN's operator, after a step that left the robot at `here`.
+    fn operator_step(&mut self, here: [f64; 2]) {
+        let world = &self.scenario.world;
+        let Some(op) = self.operator.as_mut() else {
+            return;
+        };
+        let now = op.at(world, here);
+        if now <= op.best_s - op.rule.min_gain_s {
+            op.best_s = now;
+            op.since_s = self.time_s;
+            op.faced = false;
+            return;
+        }
+        if self.time_s - op.since_s < op.rule.patience_s {
+            return;
+        }
+        op.since_s = self.time_s;
+        if !op.faced {
+            op.faced = true;
+            self.interventions += 1;
+            self.intervention_points.push(here);
+            let g = self.scenario.goal;
+            let yaw = (g[1] - here[1]).atan2(g[0] - here[0]);
+            self.carry_to([here[0], here[1], yaw]);
+            return;
+        }
+        // Facing the goal did not help: walk it down the cost to go.
+        op.faced = false;
+        let target = op.best_s - op.rule.walk_gain_s;
+        let walk = op.walk(world, here, target);
+        if let Some(&end) = walk.last() {
+            let prev = if walk.len() > 1 {
+                walk[walk.len() - 2]
+            } else {
+                here
+            };
+            let yaw = (end[1] - prev[1]).atan2(end[0] - prev[0]);
+            op.best_s = op.best_s.min(op.at(world, end));
+            self.track.extend(&walk[..walk.len() - 1]);
+            self.carry_to([end[0], end[1], yaw]);
+        }
     }
 
     pub fn summary(&self) -> Summary {
@@ -274,6 +441,55 @@ impl PoseLog {
     pub fn flush(&mut self) -> std::io::Result<()> {
         use std::io::Write;
         self.out.flush()
+    }
+}
+
+impl Operator {
+    /// The cost to go at world point `p` (infinite off the world or where
+    /// no path leads).
+    fn at(&self, world: &crate::world::World, p: [f64; 2]) -> f64 {
+        let (x, y) = world.cell_of(p[0], p[1]);
+        if !world.contains(x, y) {
+            return f64::INFINITY;
+        }
+        self.cost_to_go_s
+            .get(y as usize * world.width + x as usize)
+            .copied()
+            .unwrap_or(f64::INFINITY)
+    }
+
+    /// Cell centres from `from` down the cost to go (each step to the
+    /// cheapest neighbour that is not lethal) until it is at most
+    /// `target_s`, the goal is reached, or no neighbour is cheaper.
+    fn walk(&self, world: &crate::world::World, from: [f64; 2], target_s: f64) -> Vec<[f64; 2]> {
+        let r = world.resolution_m;
+        let (mut x, mut y) = world.cell_of(from[0], from[1]);
+        let mut out = Vec::new();
+        let cost = |x: i64, y: i64| {
+            if world.contains(x, y) && !world.lethal(x, y) {
+                self.cost_to_go_s[y as usize * world.width + x as usize]
+            } else {
+                f64::INFINITY
+            }
+        };
+        let mut c = cost(x, y);
+        while c > target_s && c > 0.0 {
+            let mut next = (x, y, c);
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let n = cost(x + dx, y + dy);
+                    if n < next.2 {
+                        next = (x + dx, y + dy, n);
+                    }
+                }
+            }
+            if next.2 >= c {
+                break;
+            }
+            (x, y, c) = next;
+            out.push([x as f64 * r, y as f64 * r]);
+        }
+        out
     }
 }
 
@@ -359,6 +575,83 @@ mod tests {
             rgb.chunks(3).filter(|p| p == &[255, 255, 255]).count() > 50,
             "the track is drawn"
         );
+    }
+
+    /// A myopic goal-seeker: turn toward the goal, drive when facing it.
+    fn seek_goal(e: &Episode) -> (f64, f64) {
+        let (g, r) = (e.scenario.goal, &e.robot);
+        let bearing = (g[1] - r.y_m).atan2(g[0] - r.x_m);
+        let err = (bearing - r.yaw_rad + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI;
+        (if err.abs() < 0.3 { 2.0 } else { 0.0 }, 2.0 * err)
+    }
+
+    #[test]
+    fn lrns_operator_faces_the_goal_then_walks_a_trapped_robot_out() {
+        let drive = |intervention: InterventionRule| {
+            let cfg = EpisodeConfig {
+                max_time_s: 200.0,
+                intervention,
+                ..Default::default()
+            };
+            let mut e = Episode::new(scenario("bug-trap", 1).unwrap(), cfg);
+            while e.step(seek_goal(&e), 0.1) == Outcome::Driving {}
+            e
+        };
+        // Carried back along its own track, it drives into the cup again.
+        let carried = drive(InterventionRule::default());
+        assert_eq!(carried.outcome(), Outcome::TimedOut);
+        assert!(carried.interventions >= 5, "{:?}", carried.summary());
+
+        // The operator: pinned at the back wall (x = 55) from about 18 s,
+        // faced to the goal at about 38 s (it already faces it), walked out
+        // of the cup at about 58 s down the expert's cost to go, and in the
+        // end it drives to the goal itself.
+        let op = drive(InterventionRule::named("operator").unwrap());
+        let sum = op.summary();
+        assert_eq!(sum.outcome, Outcome::Reached, "{sum:?}");
+        // The walk ends 10 s of cost below the best (near an arm's end);
+        // the seeker turns back into the cup once more and is walked again.
+        assert!(
+            (1..=3).contains(&sum.interventions),
+            "face and walk are one intervention: {sum:?}"
+        );
+        let p = op.intervention_points[0];
+        assert!(
+            (p[0] - 54.0).abs() < 1.5 && (p[1] - 50.0).abs() < 3.0,
+            "{p:?}"
+        );
+        assert!(
+            op.track.iter().any(|q| q[1] > 71.0 || q[1] < 29.0),
+            "the walk leaves the cup past an arm's end"
+        );
+        assert!(
+            sum.time_s > 55.0 && sum.time_s < 120.0,
+            "two 20 s waits, then the drive: {sum:?}"
+        );
+        // Only the driven stretch counts: the walk is carried.
+        assert!(sum.distance_m < 110.0, "{sum:?}");
+
+        // A robot that drives straight to an open goal is left alone.
+        let mut open = scenario("bug-trap", 1).unwrap();
+        open.world = crate::world::World::new(120, 100, crate::world::Cover::Grass);
+        let mut e = Episode::new(
+            open,
+            EpisodeConfig {
+                intervention: InterventionRule::named("operator").unwrap(),
+                ..Default::default()
+            },
+        );
+        while e.step(seek_goal(&e), 0.1) == Outcome::Driving {}
+        assert_eq!(
+            (e.outcome(), e.interventions),
+            (Outcome::Reached, 0),
+            "{:?}",
+            e.summary()
+        );
+        assert!(InterventionRule::named("walk")
+            .unwrap_err()
+            .contains("\"walk\""));
     }
 
     #[test]

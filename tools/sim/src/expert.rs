@@ -13,7 +13,7 @@
 //! judge a method's time against a privileged driver's the same way.
 
 use crate::world::World;
-use farsight_subgoal_selection::dstar_lite::{astar, CostGrid};
+use farsight_subgoal_selection::dstar_lite::{astar, cost_to_go, CostGrid};
 use farsight_velocity_servoing::{carrot_command, carrot_point, RateLimiter, ServoConfig};
 
 pub struct Expert {
@@ -90,6 +90,17 @@ pub fn expert_plan(
         .collect();
     let time_s = traversal_time_s(world, &path, max_linear_mps);
     Some(ExpertPlan { path, time_s })
+}
+
+/// The expert's cost to reach `goal` from every cell of `world` (row-major,
+/// seconds over the expert's grid, infinite where no path leads): what the
+/// operator of [`crate::episode::InterventionRule::Operator`] knows about
+/// the map. Empty when the goal is off the world.
+pub fn expert_cost_to_go(world: &World, goal: [f64; 2]) -> Vec<f64> {
+    match grid_cell(world, goal) {
+        Some(g) => cost_to_go(&expert_grid(world), g),
+        None => Vec::new(),
+    }
 }
 
 /// Time to drive along `path` (cell centres) at the fastest speed the

@@ -102,6 +102,11 @@ pub struct RunArgs {
     /// frozen command writer stops the robot (farsight_interfaces::base).
     #[arg(long, default_value_t = 1.0)]
     pub base_max_ttl_s: f64,
+    /// When an operator steps in: `carry-back` (stuck in place: 3 m back
+    /// along the track) or `operator` (LRN section IV: not making progress
+    /// by the expert's cost to go: face the goal, then walk it).
+    #[arg(long, default_value = "carry-back", value_parser = crate::episode::InterventionRule::named)]
+    pub intervention_rule: crate::episode::InterventionRule,
     #[arg(long, default_value = "out/sim")]
     pub out: PathBuf,
     /// Who drives: the graph's commands, or the expert (A* on the true map).
@@ -283,6 +288,7 @@ impl RunArgs {
             oracle: self.oracle,
             far_field_oracle: self.far_field_oracle,
             base_max_ttl_s: self.base_max_ttl_s,
+            intervention: self.intervention_rule,
         }
     }
 }

@@ -46,6 +46,8 @@ pub struct SimOptions {
     pub far_field_oracle: bool,
     /// The base obeys a command at most this long (s) after receipt.
     pub base_max_ttl_s: f64,
+    /// When an operator steps in and what they do.
+    pub intervention: crate::episode::InterventionRule,
 }
 
 impl Default for SimOptions {
@@ -63,6 +65,7 @@ impl Default for SimOptions {
             oracle: false,
             far_field_oracle: false,
             base_max_ttl_s: 1.0,
+            intervention: Default::default(),
         }
     }
 }
@@ -137,6 +140,7 @@ impl SimRobot {
         };
         let config = EpisodeConfig {
             max_time_s: options.max_time_s,
+            intervention: options.intervention,
             ..Default::default()
         };
         Ok(Self {
