@@ -52,6 +52,23 @@ pub struct WorldPlannerConfig {
     /// one (the expert's 4 s/m: a detour up to four times as long as the
     /// squeeze is preferred).
     pub inflation_cost_s_per_m: f32,
+    /// What the planner remembers: `"world"` keeps every cell a costmap
+    /// ever gave (FITAM's map with memory); `"costmap"` forgets a cell as
+    /// soon as the latest costmap no longer covers it, so the plan knows
+    /// only the local map and the unknown cost beyond (LRN section IV's
+    /// myopic local stack: Spot's fixed 16 m local map).
+    pub memory: PlannerMemory,
+}
+
+/// What a [`WorldPlanner`] remembers of past costmaps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PlannerMemory {
+    /// Every cell ever observed keeps its last cost.
+    #[default]
+    World,
+    /// Only the latest costmap's cells; the rest is unknown.
+    Costmap,
 }
 
 impl Default for WorldPlannerConfig {
@@ -65,6 +82,7 @@ impl Default for WorldPlannerConfig {
             inscribed_radius_m: 0.5,
             inflation_radius_m: 1.5,
             inflation_cost_s_per_m: 4.0,
+            memory: PlannerMemory::World,
         }
     }
 }
@@ -129,6 +147,12 @@ pub struct WorldPlanner {
     /// each with whether it is within the inscribed radius too.
     disk: Vec<(i64, i64, bool)>,
     inflation_cost_s_per_m: f32,
+    unknown_cost_s_per_m: f32,
+    memory: PlannerMemory,
+    /// With [`PlannerMemory::Costmap`]: the cells the latest costmap gave,
+    /// and a mark per cell for the one being applied.
+    covered: Vec<usize>,
+    marked: Vec<bool>,
 }
 
 impl WorldPlanner {
@@ -188,6 +212,13 @@ impl WorldPlanner {
             lethal_inscribed: inscribed_reaches_out.then(|| vec![0; w * h]),
             disk,
             inflation_cost_s_per_m: cfg.inflation_cost_s_per_m,
+            unknown_cost_s_per_m: cfg.unknown_cost_s_per_m,
+            memory: cfg.memory,
+            covered: Vec::new(),
+            marked: match cfg.memory {
+                PlannerMemory::World => Vec::new(),
+                PlannerMemory::Costmap => vec![false; w * h],
+            },
         }
     }
 
@@ -216,11 +247,15 @@ impl WorldPlanner {
     }
 
     /// Copies a costmap message into the grid; returns how many cells changed.
-    /// NaN cells (never observed) are left as they are.
+    /// NaN cells (never observed) are left as they are, and so is every
+    /// other cell unless the planner remembers only the latest costmap
+    /// ([`PlannerMemory::Costmap`]): then the cells it does not cover go
+    /// back to the unknown cost.
     pub fn apply_costmap(&mut self, header: &CostmapHeader, cells: &[CostCell]) -> usize {
-        let (w, h) = (self.dstar.grid().width, self.dstar.grid().height);
-        let lethal = |c: f32| c.is_infinite();
+        let w = self.dstar.grid().width;
+        let forget = self.memory == PlannerMemory::Costmap;
         let mut touched = Vec::new();
+        let mut covered = Vec::new();
         for (k, c) in cells.iter().enumerate().take(header.cell_count()) {
             if c.cost_s_per_m.is_nan() {
                 continue;
@@ -228,29 +263,23 @@ impl WorldPlanner {
             let Some((x, y)) = self.cell(header.cell_centre_m(k)) else {
                 continue;
             };
-            let i = y * w + x;
-            let old = std::mem::replace(&mut self.base[i], c.cost_s_per_m);
-            touched.push((x, y));
-            if lethal(old) != lethal(c.cost_s_per_m) {
-                let count = |n: &mut u32| {
-                    if lethal(c.cost_s_per_m) {
-                        *n += 1;
-                    } else {
-                        *n -= 1;
-                    }
-                };
-                for &(dx, dy, inscribed) in &self.disk {
-                    let (nx, ny) = (x as i64 + dx, y as i64 + dy);
-                    if nx >= 0 && ny >= 0 && (nx as usize) < w && (ny as usize) < h {
-                        let j = ny as usize * w + nx as usize;
-                        count(&mut self.lethal_near[j]);
-                        if let (true, Some(l)) = (inscribed, self.lethal_inscribed.as_mut()) {
-                            count(&mut l[j]);
-                        }
-                        touched.push((nx as usize, ny as usize));
-                    }
+            if forget {
+                self.marked[y * w + x] = true;
+                covered.push(y * w + x);
+            }
+            self.set_base(x, y, c.cost_s_per_m, &mut touched);
+        }
+        if forget {
+            let unknown = self.unknown_cost_s_per_m;
+            for i in std::mem::take(&mut self.covered) {
+                if !self.marked[i] {
+                    self.set_base(i % w, i / w, unknown, &mut touched);
                 }
             }
+            for &i in &covered {
+                self.marked[i] = false;
+            }
+            self.covered = covered;
         }
         let (base, near, inscribed) = (&self.base, &self.lethal_near, &self.lethal_inscribed);
         let dear = self.inflation_cost_s_per_m;
@@ -266,6 +295,44 @@ impl WorldPlanner {
             };
             (x, y, effective)
         }))
+    }
+
+    /// Sets one cell's base cost and keeps the lethal counts of the cells
+    /// around it; every cell whose effective cost may change is pushed to
+    /// `touched`.
+    fn set_base(
+        &mut self,
+        x: usize,
+        y: usize,
+        cost_s_per_m: f32,
+        touched: &mut Vec<(usize, usize)>,
+    ) {
+        let (w, h) = (self.dstar.grid().width, self.dstar.grid().height);
+        let lethal = |c: f32| c.is_infinite();
+        let i = y * w + x;
+        let old = std::mem::replace(&mut self.base[i], cost_s_per_m);
+        touched.push((x, y));
+        if lethal(old) == lethal(cost_s_per_m) {
+            return;
+        }
+        let count = |n: &mut u32| {
+            if lethal(cost_s_per_m) {
+                *n += 1;
+            } else {
+                *n -= 1;
+            }
+        };
+        for &(dx, dy, inscribed) in &self.disk {
+            let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+            if nx >= 0 && ny >= 0 && (nx as usize) < w && (ny as usize) < h {
+                let j = ny as usize * w + nx as usize;
+                count(&mut self.lethal_near[j]);
+                if let (true, Some(l)) = (inscribed, self.lethal_inscribed.as_mut()) {
+                    count(&mut l[j]);
+                }
+                touched.push((nx as usize, ny as usize));
+            }
+        }
     }
 
     /// A goal in a blocked cell (lethal, or within the inscribed radius of
@@ -418,6 +485,74 @@ mod tests {
         assert_eq!(
             p.plan([500.0, 0.0]),
             Err(PlanError::OutsideGrid(500.0, 0.0))
+        );
+    }
+
+    #[test]
+    fn a_myopic_planner_forgets_a_wall_its_local_map_has_scrolled_past() {
+        // A 5x11 local map (1 m), centred on x: the wall x = 10, y in -5..=5
+        // while the map is at x = 10; open ground once it has moved to x = 4.
+        let local = |centre_x: f64| {
+            let header = CostmapHeader {
+                stamp: Stamp::default(),
+                layer: CostmapLayer::FUSED,
+                width: 5,
+                height: 11,
+                resolution_m: 1.0,
+                x_min_m: centre_x - 2.0,
+                y_max_m: 5.0,
+            };
+            let cells: Vec<CostCell> = (0..55)
+                .map(|k| {
+                    let x = header.cell_centre_m(k)[0];
+                    CostCell {
+                        cost_s_per_m: if (x - 10.0).abs() < 0.1 {
+                            f32::INFINITY
+                        } else {
+                            0.5
+                        },
+                        variance: 0.0,
+                    }
+                })
+                .collect();
+            (header, cells)
+        };
+        let plan_after = |memory: PlannerMemory| {
+            let cfg = WorldPlannerConfig {
+                margin_m: 10.0,
+                inflation_radius_m: 0.0,
+                memory,
+                ..Default::default()
+            };
+            let mut p = WorldPlanner::new([0.0, 0.0], [20.0, 0.0], &cfg);
+            for x in [10.0, 4.0] {
+                let (h, c) = local(x);
+                p.apply_costmap(&h, &c);
+            }
+            p.plan([0.0, 0.0]).unwrap()
+        };
+        let (remembered, _) = plan_after(PlannerMemory::World);
+        assert!(
+            remembered.iter().any(|q| q[1].abs() > 5.0),
+            "with memory the path goes round the wall: {remembered:?}"
+        );
+        let (forgotten, cost) = plan_after(PlannerMemory::Costmap);
+        assert!(
+            forgotten.iter().all(|q| q[1].abs() < 1e-9),
+            "the wall left the local map: straight on {forgotten:?}"
+        );
+        // Cells 2..=6 seen as grass (0.5 s/m), the other 15 steps unknown
+        // (1 s/m).
+        assert!((cost - (5.0 * 0.5 + 15.0 * 1.0)).abs() < 1e-6, "{cost}");
+        assert_eq!(
+            farsight_stage::parse_config::<crate::stage::SubgoalStageConfig>(
+                "[planner]\nmemory = \"costmap\"",
+                "t.toml"
+            )
+            .unwrap()
+            .planner
+            .memory,
+            PlannerMemory::Costmap
         );
     }
 
