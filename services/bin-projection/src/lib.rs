@@ -188,6 +188,47 @@ impl CameraBins {
     }
 }
 
+/// Per pixel of a `width` x `height` image from `camera`, the range (m) at
+/// which its ray meets flat ground, at most `cap_m`; 0 for a ray at or
+/// above the horizon. The depth of [`LrnInput::Navigability`]: on flat
+/// ground it is the true depth of every ground pixel, which is all the
+/// navigability keeps.
+pub fn ground_range_table(camera: &Camera, width: usize, height: usize, cap_m: f64) -> Vec<f32> {
+    let scaled = Camera {
+        model: camera.model.scaled_to(width as u32, height as u32),
+        ..camera.clone()
+    };
+    let mut out = Vec::with_capacity(width * height);
+    for v in 0..height {
+        for u in 0..width {
+            let r = scaled
+                .ground_point_m(u as f64, v as f64)
+                .map_or(0.0, |(x, y)| x.hypot(y).min(cap_m));
+            out.push(r as f32);
+        }
+    }
+    out
+}
+
+/// LRN section IV-D's "Traversability + Depth" heatmap: each navigable
+/// pixel (mono8 at least 128) scores its range over the farthest navigable
+/// pixel's, the rest 0. All zeros when nothing navigable has a range.
+pub fn traversability_depth_heatmap(navigability: &[u8], range_m: &[f32]) -> Vec<f32> {
+    let kept = |i: usize| {
+        if navigability[i] >= 128 {
+            range_m[i]
+        } else {
+            0.0
+        }
+    };
+    let n = navigability.len().min(range_m.len());
+    let far = (0..n).map(kept).fold(0.0f32, f32::max);
+    if far <= 0.0 {
+        return vec![0.0; n];
+    }
+    (0..n).map(|i| kept(i) / far).collect()
+}
+
 /// Where LRN's `h_thresh` applies. The paper's text thresholds bin scores; its
 /// Remark III treats it as the heatmap's quality knob. Pixels is the default:
 /// a bin sum grows with the bin's pixel count, so one threshold cannot serve
@@ -201,6 +242,22 @@ pub enum ThresholdOn {
     Bins,
 }
 
+/// What LRN's bins are summed from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum LrnInput {
+    /// An affordance heatmap (`perception/<camera>/heatmap`, f32): LRN.
+    #[default]
+    Heatmap,
+    /// A segmentation's navigability (`perception/<camera>/navigability`,
+    /// mono8, 255 = navigable) times each pixel's flat-ground range,
+    /// normalised by the frame's farthest navigable pixel: LRN section
+    /// IV-D's "Traversability + Depth" baseline ("distant traversable
+    /// points should be hotspots"; the scores normalised and multiplied).
+    /// For users without a trained heatmap.
+    Navigability,
+}
+
 /// LRN bin parameters (Spot preset: 5 degree bins, h_thresh 0.7, alpha 0.1).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -210,6 +267,10 @@ pub struct LrnBinsConfig {
     pub threshold_on: ThresholdOn,
     /// EMA weight of the newest scores.
     pub alpha: f64,
+    pub input: LrnInput,
+    /// With `input = "navigability"`: ranges beyond this count as this
+    /// (m); rays near the horizon meet flat ground arbitrarily far away.
+    pub range_cap_m: f64,
 }
 
 impl Default for LrnBinsConfig {
@@ -219,6 +280,8 @@ impl Default for LrnBinsConfig {
             h_thresh: 0.7,
             threshold_on: ThresholdOn::Pixels,
             alpha: 0.1,
+            input: LrnInput::Heatmap,
+            range_cap_m: 100.0,
         }
     }
 }
@@ -242,7 +305,12 @@ impl Validate for LrnBinsConfig {
             Range::between(1.0, 90.0).unit("deg"),
         )
         .key("h_thresh", self.h_thresh, Range::between(0.0, 1.0))
-        .key("alpha", self.alpha, Range::above_to(0.0, 1.0));
+        .key("alpha", self.alpha, Range::above_to(0.0, 1.0))
+        .key(
+            "range_cap_m",
+            self.range_cap_m,
+            Range::above_to(0.0, 10_000.0).unit("m"),
+        );
     }
 }
 
@@ -316,6 +384,31 @@ impl LrnBins {
 mod tests {
     use super::*;
     use farsight_interfaces::camera::{CameraModel, Lens, Mount};
+
+    #[test]
+    fn the_traversability_heatmap_is_navigable_range_over_the_farthest() {
+        let h = traversability_depth_heatmap(&[255, 255, 0, 200, 90], &[2.0, 8.0, 50.0, 4.0, 9.0]);
+        assert_eq!(h, vec![0.25, 1.0, 0.0, 0.5, 0.0]);
+        assert_eq!(
+            traversability_depth_heatmap(&[0, 255], &[3.0, 0.0]),
+            vec![0.0, 0.0]
+        );
+        // 1 m up, level: the lower half meets the ground, nearer lower down;
+        // the upper half never does.
+        let cam = Camera::new(
+            0,
+            "c",
+            farsight_interfaces::camera::CameraModel::pinhole(8, 8, 4.0, 4.0, 3.5, 3.5),
+            farsight_interfaces::camera::Mount::from_xyz_rpy_deg([0.0, 0.0, 1.0], [0.0; 3]),
+        );
+        let r = ground_range_table(&cam, 8, 8, 50.0);
+        assert!(r[..4 * 8].iter().all(|&x| x == 0.0));
+        assert!(
+            r[4 * 8 + 3] == 50.0 || r[4 * 8 + 3] > r[5 * 8 + 3],
+            "capped"
+        );
+        assert!(r[5 * 8 + 3] > r[7 * 8 + 3] && r[7 * 8 + 3] > 1.0);
+    }
 
     #[test]
     fn bins_wrap_and_centre() {

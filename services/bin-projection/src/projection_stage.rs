@@ -23,7 +23,10 @@
 
 use crate::fitam::{self, FitamBinsConfig};
 use crate::stage::BinProjectionConfig;
-use crate::{BinGeometry, CameraBins, LrnBins, Projection};
+use crate::{
+    ground_range_table, traversability_depth_heatmap, BinGeometry, CameraBins, LrnBins, LrnInput,
+    Projection,
+};
 use farsight_interfaces::camera::Camera;
 use farsight_interfaces::fixed::FixedVec;
 use farsight_interfaces::message::{Image, Message, PolarBins, Tensor};
@@ -86,9 +89,14 @@ enum Method {
 struct Lrn {
     geometry: BinGeometry,
     pixel_threshold: f32,
+    input: LrnInput,
+    range_cap_m: f64,
     /// Per camera: pixel -> bin, for the model and heatmap size it was built
     /// for (un-projecting a fisheye is iterative: not once per frame).
     tables: Vec<Option<CameraBins>>,
+    /// With [`LrnInput::Navigability`], per camera: its size and each
+    /// pixel's flat-ground range.
+    ranges: Vec<Option<(usize, usize, Vec<f32>)>>,
     /// Each camera's latest projection; a camera that stops sending drops
     /// out instead of holding its bins forever.
     latest: Vec<Option<Projection>>,
@@ -122,6 +130,8 @@ impl StageKind for ProjectionStage {
             .map(|c| {
                 ports.waking_input(if fitam {
                     topics::far_field_logits(c).name().to_string()
+                } else if config.bins.input == LrnInput::Navigability {
+                    topics::navigability(c).name().to_string()
                 } else {
                     topics::affordance_heatmap(c).name().to_string()
                 })
@@ -162,7 +172,10 @@ impl StageKind for ProjectionStage {
             let method = Method::Lrn(Lrn {
                 geometry,
                 pixel_threshold: config.bins.pixel_threshold(),
+                input: config.bins.input,
+                range_cap_m: config.bins.range_cap_m,
                 tables: vec![None; n],
+                ranges: vec![None; n],
                 latest: vec![None; n],
                 bins: LrnBins::new(geometry, config.bins),
             });
@@ -264,7 +277,10 @@ impl Method {
     /// Camera `i`'s model changed: its tables no longer fit.
     fn forget_tables(&mut self, i: usize) {
         match self {
-            Self::Lrn(m) => m.tables[i] = None,
+            Self::Lrn(m) => {
+                m.tables[i] = None;
+                m.ranges[i] = None;
+            }
             Self::Fitam(m) => m.slice_bins[i] = None,
         }
     }
@@ -319,8 +335,19 @@ impl Lrn {
     ) -> Result<Stamp, String> {
         let h = heatmap.header;
         h.validate(heatmap.data.len()).map_err(|e| e.to_string())?;
-        if h.encoding != PixelEncoding::F32 {
-            return Err(format!("heatmap must be f32, got {}", h.encoding));
+        let want = match self.input {
+            LrnInput::Heatmap => PixelEncoding::F32,
+            LrnInput::Navigability => PixelEncoding::MONO8,
+        };
+        if h.encoding != want {
+            return Err(format!(
+                "{} must be {want}, got {}",
+                match self.input {
+                    LrnInput::Heatmap => "heatmap",
+                    LrnInput::Navigability => "navigability",
+                },
+                h.encoding
+            ));
         }
         let cam = camera?;
         let (w, hh) = (h.width as usize, h.height as usize);
@@ -328,6 +355,15 @@ impl Lrn {
             Some(t) if (t.width, t.height) == (w, hh) => t,
             slot => slot.insert(CameraBins::new(cam, w, hh, &self.geometry)),
         };
+        if self.input == LrnInput::Navigability {
+            let (_, _, range_m) = match &mut self.ranges[i] {
+                Some(r) if (r.0, r.1) == (w, hh) => r,
+                slot => slot.insert((w, hh, ground_range_table(cam, w, hh, self.range_cap_m))),
+            };
+            let values = traversability_depth_heatmap(&heatmap.data, range_m);
+            self.latest[i] = Some(table.project(&values, self.pixel_threshold));
+            return Ok(h.stamp);
+        }
         // Read the heatmap in place; copy only if the bytes are not
         // f32-aligned (an owned byte buffer promises no alignment).
         let copied: Vec<f32>;
@@ -513,6 +549,54 @@ mod tests {
         );
         assert_eq!(angular(h.step(wake, 11 * S))[0].stamp.frame_seq, 8);
         assert!(h.step(Wake::Tick, 11 * S + S / 5).is_empty());
+    }
+
+    #[test]
+    fn navigability_times_range_makes_the_traversability_baseline_bins() {
+        // 1 m up, 10 degrees down, 90 degree field of view: the horizon is
+        // above the image centre, the lower rows are near ground.
+        let front = Camera::new(
+            0,
+            "front",
+            CameraModel::pinhole(W as u32, H as u32, 32.0, 32.0, 31.5, 15.5),
+            Mount::from_xyz_rpy_deg([0.0, 0.0, 1.0], [0.0, 10.0, 0.0]),
+        );
+        let mut h = stage("cameras = [\"front\"]\n[bins]\nalpha = 1.0\nh_thresh = 0.0\ninput = \"navigability\"\n");
+        let wake = h.wake_on("perception/front/navigability");
+        h.put("camera/front/info", info(&front));
+        // Navigable: the left half's bottom row only (near), and the right
+        // half's whole ground (out to the far rows).
+        let mut nav = vec![0u8; W * H];
+        for v in 0..H {
+            for u in 0..W {
+                if (u < W / 2 && v == H - 1) || u >= W / 2 {
+                    nav[v * W + u] = 255;
+                }
+            }
+        }
+        let image = |data: Vec<u8>, enc| Image {
+            header: ImageHeader::packed(stamp(3, 10 * S), 0, W as u32, H as u32, enc),
+            data,
+        };
+        h.put(
+            "perception/front/navigability",
+            image(nav, PixelEncoding::MONO8),
+        );
+        let bins = angular(h.step(wake, 10 * S));
+        let sc = bins[0].scores.as_slice();
+        // Left of centre is +bearing (counter-clockwise).
+        let (left, right) = (sc[bin_of(&bins[0], 20.0)], sc[bin_of(&bins[0], -20.0)]);
+        assert!(
+            right > 5.0 * left && left > 0.0,
+            "far beats near: {left} vs {right}"
+        );
+        // A heatmap where navigability was configured is dropped by name.
+        h.put(
+            "perception/front/navigability",
+            image(vec![0; W * H * 4], PixelEncoding::F32),
+        );
+        assert!(h.step(wake, 11 * S).is_empty());
+        assert_eq!(h.health.report().dropped, 1);
     }
 
     #[test]
