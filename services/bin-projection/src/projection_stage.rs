@@ -127,15 +127,7 @@ impl StageKind for ProjectionStage {
         let frames = config
             .cameras
             .iter()
-            .map(|c| {
-                ports.waking_input(if fitam {
-                    topics::far_field_logits(c).name().to_string()
-                } else if config.bins.input == LrnInput::Navigability {
-                    topics::navigability(c).name().to_string()
-                } else {
-                    topics::affordance_heatmap(c).name().to_string()
-                })
-            })
+            .map(|c| ports.waking_input(config.perception_topic(c)))
             .collect();
         let cameras = CameraModels::declare(&mut ports, &config.cameras);
         let n = config.cameras.len();

@@ -2,8 +2,9 @@
 //!
 //! ```toml
 //! method = "lrn"                 # or "fitam"
-//! cameras = ["front"]            # reads perception/<camera>/heatmap (lrn) or
-//!                                # perception/<camera>/far_field (fitam), and camera/<camera>/info
+//! cameras = ["front"]            # reads perception/<camera>/heatmap (lrn), .../navigability
+//!                                # (lrn, bins.input = "navigability") or .../far_field
+//!                                # (fitam), and camera/<camera>/info
 //! input_deadline_s = 1.0         # a camera whose newest capture is this much older than
 //!                                # the newest of any camera drops out of the bins
 //! health_rate_hz = 1.0
@@ -15,6 +16,10 @@
 //! h_thresh = 0.7
 //! threshold_on = "pixels"        # or "bins"
 //! alpha = 0.1
+//! input = "heatmap"              # or "navigability": a segmentation's navigable pixels
+//!                                # times their ground range (LRN IV-D's Traversability +
+//!                                # Depth baseline)
+//! range_cap_m = 100.0            # navigability: farther ground counts as this far
 //! [fitam]                        # see farsight_bin_projection::fitam::FitamBinsConfig
 //! heading_bins = 32
 //! range_edges_m = [25.0, 50.0, 75.0, 100.0]
@@ -90,6 +95,20 @@ impl Validate for BinProjectionConfig {
     }
 }
 
+impl BinProjectionConfig {
+    /// The perception topic read from `camera`: FITAM's far-field tensor,
+    /// or for LRN the heatmap or the navigability its bins are summed from.
+    pub fn perception_topic(&self, camera: &str) -> String {
+        if self.method == "fitam" {
+            topics::far_field_logits(camera).name().to_string()
+        } else if self.bins.input == crate::LrnInput::Navigability {
+            topics::navigability(camera).name().to_string()
+        } else {
+            topics::affordance_heatmap(camera).name().to_string()
+        }
+    }
+}
+
 impl farsight_stage::DeclaresTopics for BinProjectionConfig {
     fn topics(&self, instance: &str, _: &std::path::Path) -> Result<Io, String> {
         let mut io = Io::for_instance(instance);
@@ -97,12 +116,7 @@ impl farsight_stage::DeclaresTopics for BinProjectionConfig {
             // The cameras are one group: one fresh camera keeps the bins
             // going. Each is still a required edge: a camera nothing feeds
             // is a wiring mistake.
-            let input = if self.method == "fitam" {
-                topics::far_field_logits(c).name().to_string()
-            } else {
-                topics::affordance_heatmap(c).name().to_string()
-            };
-            io.read(input, Need::Required)
+            io.read(self.perception_topic(c), Need::Required)
                 .read(topics::camera_info(c).name(), Need::Required);
         }
         io.write(if self.method == "fitam" {

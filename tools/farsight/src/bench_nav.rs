@@ -72,7 +72,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// The benchmark's rows: name and graph file (relative to the repository).
-pub const METHODS: [(&str, &str); 8] = [
+pub const METHODS: [(&str, &str); 11] = [
     ("lrn_learned", "graphs/sim/lrn.toml"),
     ("goal_heuristic", "graphs/sim/lrn-goal-heuristic.toml"),
     ("dstar_no_far_field", "graphs/sim/dstar-lite.toml"),
@@ -81,6 +81,15 @@ pub const METHODS: [(&str, &str); 8] = [
     ("povnav_oracle", "graphs/sim/povnav-oracle.toml"),
     ("povnav_lrn", "graphs/sim/povnav-lrn.toml"),
     ("lrn_local_planner", "graphs/sim/lrn-dstar.toml"),
+    ("lrn_myopic", "graphs/sim/lrn-myopic.toml"),
+    (
+        "goal_heuristic_myopic",
+        "graphs/sim/goal-heuristic-myopic.toml",
+    ),
+    (
+        "traversability_myopic",
+        "graphs/sim/traversability-myopic.toml",
+    ),
 ];
 
 /// The simulator a graph asks for: a camera for each `camera/<name>/...`
@@ -525,7 +534,7 @@ mod tests {
             let (_, g) = METHODS.iter().find(|(n, _)| *n == m).unwrap();
             Graph::load(&crate::graph::repo_file(g).unwrap()).unwrap()
         };
-        let pairs: [(&str, &str, &[&str]); 3] = [
+        let pairs: [(&str, &str, &[&str]); 5] = [
             (
                 // FITAM's row against its "no far field" baseline: the far
                 // field (ground-truth bins) and fusion answering it. The
@@ -563,6 +572,25 @@ mod tests {
                 "goal_heuristic",
                 "lrn_learned",
                 &["node subgoal-selection: method"],
+            ),
+            (
+                // LRN section IV: the goal heuristic over the same myopic
+                // stack, only the head's choice differs.
+                "goal_heuristic_myopic",
+                "lrn_myopic",
+                &["node lrn-head: method"],
+            ),
+            (
+                // Traversability + Depth: what feeds the bins (the HSV
+                // segmentation's navigability and range, or LRN's model).
+                "traversability_myopic",
+                "lrn_myopic",
+                &[
+                    "node bin-projection: bins.input",
+                    "node inference: backend",
+                    "node inference: hsv.ranges",
+                    "node inference: model_config",
+                ],
             ),
         ];
         let mut wrong = Vec::new();
