@@ -158,6 +158,15 @@ pub struct NavArgs {
     /// walked toward it). Recorded in the protocol.
     #[arg(long, default_value = "carry-back", value_parser = farsight_sim::episode::InterventionRule::named)]
     pub intervention_rule: farsight_sim::episode::InterventionRule,
+    /// Standard deviation of the noise on the pose the stack is told (m),
+    /// seeded per trial: localisation error, and what makes repeated
+    /// trials of a layout that no seed changes (bug-trap, bridge) differ,
+    /// as a real robot's repeated runs do. Recorded in the protocol.
+    #[arg(long, default_value_t = 0.0)]
+    pub pose_noise_m: f64,
+    /// The same for the heading (degrees).
+    #[arg(long, default_value_t = 0.0)]
+    pub yaw_noise_deg: f64,
     /// Write each trial's poses (`<scenario>-<method>-<seed>.csv`, as
     /// `farsight-sim run` writes `poses.csv`) into this folder, and a
     /// top-down picture of each trial that did not reach the goal or needed

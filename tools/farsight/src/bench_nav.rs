@@ -96,13 +96,7 @@ pub const METHODS: [(&str, &str); 11] = [
 /// or `perception/<name>/navigability` topic written outside the graph, the
 /// oracle's navigability and far field when the graph reads them from
 /// outside; the simulator's defaults otherwise (640x360 at 10 Hz).
-pub fn sim_options(
-    graph: &Graph,
-    scenario: &str,
-    seed: u64,
-    max_time_s: f64,
-    intervention: InterventionRule,
-) -> SimOptions {
+pub fn sim_options(graph: &Graph, scenario: &str, seed: u64, rules: &TrialRules) -> SimOptions {
     let external: Vec<&str> = graph
         .topics
         .iter()
@@ -122,7 +116,9 @@ pub fn sim_options(
     SimOptions {
         scenario: scenario.to_string(),
         seed,
-        max_time_s,
+        max_time_s: rules.max_time_s,
+        pose_noise_m: rules.pose_noise_m,
+        yaw_noise_deg: rules.yaw_noise_deg,
         cameras: if cameras.is_empty() {
             defaults.cameras.clone()
         } else {
@@ -132,7 +128,7 @@ pub fn sim_options(
             .iter()
             .any(|t| t.starts_with("perception/") && t.ends_with("/navigability")),
         far_field_oracle: external.contains(&"bins/polar"),
-        intervention,
+        intervention: rules.intervention,
         ..defaults
     }
 }
@@ -142,15 +138,34 @@ pub fn trial(
     graph: &Graph,
     scenario: &str,
     seed: u64,
-    max_time_s: f64,
-    intervention: InterventionRule,
+    rules: &TrialRules,
     trace: Option<&Path>,
 ) -> Result<Trial> {
-    lockstep::drive(
-        graph,
-        &sim_options(graph, scenario, seed, max_time_s, intervention),
-        trace,
-    )
+    lockstep::drive(graph, &sim_options(graph, scenario, seed, rules), trace)
+}
+
+/// What a trial runs under besides its graph, scenario and seed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrialRules {
+    pub max_time_s: f64,
+    pub intervention: InterventionRule,
+    /// Noise on the pose the stack is told (standard deviations).
+    pub pose_noise_m: f64,
+    pub yaw_noise_deg: f64,
+}
+
+impl TrialRules {
+    /// The simulator's defaults (no noise, the carry-back rule) with a time
+    /// limit.
+    pub fn limited_to(max_time_s: f64) -> Self {
+        let d = SimOptions::default();
+        Self {
+            max_time_s,
+            intervention: d.intervention,
+            pose_noise_m: d.pose_noise_m,
+            yaw_noise_deg: d.yaw_noise_deg,
+        }
+    }
 }
 
 /// A trial's expert and time limit: the expert's plan on the trial's world
@@ -209,6 +224,8 @@ fn protocol(a: &NavArgs, rows: &[(String, String, PathBuf)]) -> Result<Protocol>
         time_limit_x: a.time_limit_x,
         max_time_s: a.max_time_s,
         intervention_rule: a.intervention_rule.name().into(),
+        pose_noise_m: a.pose_noise_m,
+        yaw_noise_deg: a.yaw_noise_deg,
         methods: rows
             .iter()
             .map(|(m, shown, path)| MethodGraph::read(m, shown, path))
@@ -261,6 +278,15 @@ pub fn run(a: NavArgs) -> Result<()> {
     };
     rule.limit_s(Some(1.0))
         .map_err(|e| anyhow!("--time-limit-x / --max-time-s: {e}"))?;
+    for (flag, v) in [
+        ("--pose-noise-m", a.pose_noise_m),
+        ("--yaw-noise-deg", a.yaw_noise_deg),
+    ] {
+        anyhow::ensure!(
+            v.is_finite() && v >= 0.0,
+            "{flag} {v}: expected a standard deviation of 0 or more"
+        );
+    }
     for sc in &a.scenarios {
         // An unknown name fails here, not after hours of other trials.
         farsight_sim::scenario::scenario(sc, 1)?;
@@ -307,7 +333,13 @@ pub fn run(a: NavArgs) -> Result<()> {
                     time_limit(&scenario, &rule).map_err(|e| anyhow!("{sc} seed {seed}: {e}"))?;
                 let name = format!("{sc}-{m}-{seed}");
                 let csv = a.trace.as_ref().map(|d| d.join(format!("{name}.csv")));
-                let t = trial(graph, sc, seed, limit, a.intervention_rule, csv.as_deref())?;
+                let rules = TrialRules {
+                    max_time_s: limit,
+                    intervention: a.intervention_rule,
+                    pose_noise_m: a.pose_noise_m,
+                    yaw_noise_deg: a.yaw_noise_deg,
+                };
+                let t = trial(graph, sc, seed, &rules, csv.as_deref())?;
                 let s = &t.summary;
                 let expert_s = expert.as_ref().map(|e| e.time_s);
                 eprintln!(

@@ -101,6 +101,12 @@ pub struct Protocol {
     /// `operator` (LRN section IV).
     #[serde(default = "carry_back")]
     pub intervention_rule: String,
+    /// Noise on the pose the stack is told: metres, degrees (standard
+    /// deviations, seeded per trial).
+    #[serde(default)]
+    pub pose_noise_m: f64,
+    #[serde(default)]
+    pub yaw_noise_deg: f64,
     pub methods: Vec<MethodGraph>,
 }
 
@@ -175,6 +181,10 @@ impl Decided for Protocol {
                 format!("{} / {:?}", self.time_limit_x, self.max_time_s),
             ),
             ("protocol.intervention_rule", self.intervention_rule.clone()),
+            (
+                "protocol.pose_noise_m / yaw_noise_deg",
+                format!("{} / {}", self.pose_noise_m, self.yaw_noise_deg),
+            ),
             (
                 "protocol.methods (names, graphs, graph hashes)",
                 format!("{:?}", self.methods),
@@ -491,9 +501,15 @@ where
 /// The table's first lines: what was measured, under which rules.
 pub fn header(f: &ResultsFile) -> String {
     let p = &f.protocol;
-    let cap = p
+    let mut cap = p
         .max_time_s
         .map_or(String::new(), |c| format!(", at most {c:.0} s"));
+    if p.pose_noise_m > 0.0 || p.yaw_noise_deg > 0.0 {
+        cap += &format!(
+            ", pose noise {} m / {} deg",
+            p.pose_noise_m, p.yaw_noise_deg
+        );
+    }
     format!(
         "navigation benchmark: {} seeded trials per cell, each limited to {}x the expert's time on its world{cap}, the shipped graphs in one process\nprotocol {} (world generator v{}, intervention rule v{} {}, time-limit rule v{}, robot model v{}), commit {}{}\n",
         p.trials,
@@ -536,7 +552,7 @@ pub fn row(scenario: &str, method: &str, runs: &[&TrialRecord]) -> String {
                 .iter()
                 .map(|t| t.interventions as f64)
                 .collect::<Vec<_>>(),
-            0
+            1
         ),
         per_km(runs),
     )
@@ -609,6 +625,8 @@ mod tests {
             time_limit_x: 3.0,
             max_time_s: None,
             intervention_rule: "carry-back".into(),
+            pose_noise_m: 0.0,
+            yaw_noise_deg: 0.0,
             methods: vec![
                 MethodGraph {
                     name: "a".into(),
@@ -700,9 +718,9 @@ mod tests {
         let t = table(&whole);
         assert!(t.contains("| bug-trap | a | 67% [21, 94] |"), "{t}");
         // Seeds 1 and 3 needed an intervention each: 2 per 0.75 km.
-        assert!(t.contains("| 1 ± 1 | 2.7 |"), "{t}");
+        assert!(t.contains("| 0.7 ± 0.7 | 2.7 |"), "{t}");
         // Bug-trap, a: seeds 1 and 2 reached, 79 and 80 m over the expert's 50.
-        assert!(t.contains("| 1.59 ± 0.02 | 1 ± 1 |"), "{t}");
+        assert!(t.contains("| 1.59 ± 0.02 | 0.7 ± 0.7 |"), "{t}");
         assert!(t.contains(&whole.protocol_hash[..16]), "{t}");
     }
 

@@ -264,8 +264,7 @@ pub fn run(d: SimDemo) -> Result<()> {
         &loaded,
         &d.scenario,
         d.seed,
-        d.max_time_s,
-        Default::default(),
+        &crate::bench_nav::TrialRules::limited_to(d.max_time_s),
     );
     // The graph's nodes as processes under `farsight run` (each one's config
     // and log in `out`), all ready before the simulator's first frame.
