@@ -38,6 +38,22 @@ pub struct PovnavConfig {
     /// Largest look-ahead radius for the alignment feature (pixels);
     /// R = min(lambda / 2, max_lookahead_px) as the paper's section 4.8.
     pub max_lookahead_px: f64,
+    /// Which of POVNav's parts steer (its section 5.3 ablations).
+    pub components: PovnavComponents,
+}
+
+/// POVNav's parts that steer the robot (section 5.3's ablation rows). The
+/// proximity feature, and so the servo's speed law, is kept in every row.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PovnavComponents {
+    /// POG, HOG and the visual path: the full system.
+    #[default]
+    Full,
+    /// "POG+HOG": the robot aligns with the HOG itself, no visual path.
+    PogHog,
+    /// "POG only": the robot aligns with the peripheral optic goal.
+    Pog,
 }
 
 impl Default for PovnavConfig {
@@ -49,6 +65,7 @@ impl Default for PovnavConfig {
             w_exploration: 0.5,
             path_row_step: 4,
             max_lookahead_px: 120.0,
+            components: PovnavComponents::Full,
         }
     }
 }
@@ -344,6 +361,29 @@ pub fn plan(
         }
     }
 
+    // The ablations steer by a straight line to the POG or the HOG (their
+    // alignment is its direction), with no safe-width check.
+    let straight_to = |target: (f64, f64)| {
+        let (x, y) = to_plan(target.0, target.1, width, height);
+        let alignment = if x.hypot(y) >= 0.5 {
+            angle_of(x, y)
+        } else {
+            theta_g
+        };
+        PovnavPlan {
+            pog_px: pog,
+            hog_px: target,
+            path_px: vec![start, target],
+            proximity_px: proximity,
+            alignment_rad: alignment,
+            mode: Mode::Safe,
+        }
+    };
+    match cfg.components {
+        PovnavComponents::Pog => return straight_to(pog),
+        PovnavComponents::PogHog => return straight_to(hog),
+        PovnavComponents::Full => {}
+    }
     let (path, mode) = visual_path(nav, width, height, hog, half_width_px, cfg);
     // Alignment (Definition 9): direction to the path point at radius R.
     let r = (proximity / 2.0).min(cfg.max_lookahead_px).max(1.0);
@@ -598,6 +638,35 @@ mod tests {
         assert_eq!(pog(180.0), (20.0, 20.0), "exactly behind: the start pixel");
         assert_eq!(pog(-180.0), (20.0, 20.0));
         assert_eq!(pog(540.0), pog(180.0), "any angle is wrapped");
+    }
+
+    #[test]
+    fn the_ablations_steer_by_the_pog_or_the_hog_alone() {
+        // 41x21: open ground below row 4, and an obstacle block dead ahead
+        // (columns 16-24, rows 4-14); the goal straight ahead.
+        let (w, h) = (41, 21);
+        let nav = image(w, h, |u, v| v >= 4 && !((16..=24).contains(&u) && v <= 14));
+        let hw = vec![1usize; h];
+        let run = |components| {
+            let cfg = PovnavConfig {
+                components,
+                ..Default::default()
+            };
+            plan(&nav, w, h, 0.0, &hw, &cfg)
+        };
+        let full = run(PovnavComponents::Full);
+        let pog_hog = run(PovnavComponents::PogHog);
+        let pog = run(PovnavComponents::Pog);
+        assert_eq!(pog.hog_px, pog.pog_px, "POG only: no HOG");
+        assert_eq!(pog.alignment_rad, 0.0, "straight at the obstacle");
+        assert_eq!(pog_hog.hog_px, full.hog_px, "the same HOG");
+        assert_ne!(full.hog_px.0, 20.0, "the HOG is beside the block");
+        let (x, y) = to_plan(full.hog_px.0, full.hog_px.1, w, h);
+        assert!((pog_hog.alignment_rad - y.atan2(x)).abs() < 1e-12);
+        assert_eq!(pog_hog.path_px.len(), 2, "no visual path");
+        for p in [&full, &pog_hog, &pog] {
+            assert_eq!(p.proximity_px, full.proximity_px, "the speed law is kept");
+        }
     }
 
     #[test]

@@ -167,6 +167,10 @@ pub struct NavArgs {
     /// The same for the heading (degrees).
     #[arg(long, default_value_t = 0.0)]
     pub yaw_noise_deg: f64,
+    /// The simulated robot's disc footprint (m); 0.25 is a Clearpath Jackal
+    /// (0.43 m wide), POVNav section 5's robot. Recorded in the protocol.
+    #[arg(long, default_value_t = farsight_sim::robot::RobotLimits::default().radius_m)]
+    pub robot_radius_m: f64,
     /// Write each trial's poses (`<scenario>-<method>-<seed>.csv`, as
     /// `farsight-sim run` writes `poses.csv`) into this folder, and a
     /// top-down picture of each trial that did not reach the goal or needed

@@ -119,6 +119,7 @@ pub fn sim_options(graph: &Graph, scenario: &str, seed: u64, rules: &TrialRules)
         max_time_s: rules.max_time_s,
         pose_noise_m: rules.pose_noise_m,
         yaw_noise_deg: rules.yaw_noise_deg,
+        robot_radius_m: rules.robot_radius_m,
         cameras: if cameras.is_empty() {
             defaults.cameras.clone()
         } else {
@@ -152,6 +153,7 @@ pub struct TrialRules {
     /// Noise on the pose the stack is told (standard deviations).
     pub pose_noise_m: f64,
     pub yaw_noise_deg: f64,
+    pub robot_radius_m: f64,
 }
 
 impl TrialRules {
@@ -164,6 +166,7 @@ impl TrialRules {
             intervention: d.intervention,
             pose_noise_m: d.pose_noise_m,
             yaw_noise_deg: d.yaw_noise_deg,
+            robot_radius_m: d.robot_radius_m,
         }
     }
 }
@@ -226,6 +229,7 @@ fn protocol(a: &NavArgs, rows: &[(String, String, PathBuf)]) -> Result<Protocol>
         intervention_rule: a.intervention_rule.name().into(),
         pose_noise_m: a.pose_noise_m,
         yaw_noise_deg: a.yaw_noise_deg,
+        robot_radius_m: a.robot_radius_m,
         methods: rows
             .iter()
             .map(|(m, shown, path)| MethodGraph::read(m, shown, path))
@@ -338,6 +342,7 @@ pub fn run(a: NavArgs) -> Result<()> {
                     intervention: a.intervention_rule,
                     pose_noise_m: a.pose_noise_m,
                     yaw_noise_deg: a.yaw_noise_deg,
+                    robot_radius_m: a.robot_radius_m,
                 };
                 let t = trial(graph, sc, seed, &rules, csv.as_deref())?;
                 let s = &t.summary;

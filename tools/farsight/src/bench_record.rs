@@ -107,7 +107,14 @@ pub struct Protocol {
     pub pose_noise_m: f64,
     #[serde(default)]
     pub yaw_noise_deg: f64,
+    /// The simulated robot's disc footprint (m).
+    #[serde(default = "default_radius")]
+    pub robot_radius_m: f64,
     pub methods: Vec<MethodGraph>,
+}
+
+fn default_radius() -> f64 {
+    farsight_sim::robot::RobotLimits::default().radius_m
 }
 
 fn carry_back() -> String {
@@ -181,6 +188,7 @@ impl Decided for Protocol {
                 format!("{} / {:?}", self.time_limit_x, self.max_time_s),
             ),
             ("protocol.intervention_rule", self.intervention_rule.clone()),
+            ("protocol.robot_radius_m", self.robot_radius_m.to_string()),
             (
                 "protocol.pose_noise_m / yaw_noise_deg",
                 format!("{} / {}", self.pose_noise_m, self.yaw_noise_deg),
@@ -504,6 +512,9 @@ pub fn header(f: &ResultsFile) -> String {
     let mut cap = p
         .max_time_s
         .map_or(String::new(), |c| format!(", at most {c:.0} s"));
+    if p.robot_radius_m != default_radius() {
+        cap += &format!(", robot radius {} m", p.robot_radius_m);
+    }
     if p.pose_noise_m > 0.0 || p.yaw_noise_deg > 0.0 {
         cap += &format!(
             ", pose noise {} m / {} deg",
@@ -627,6 +638,7 @@ mod tests {
             intervention_rule: "carry-back".into(),
             pose_noise_m: 0.0,
             yaw_noise_deg: 0.0,
+            robot_radius_m: 0.4,
             methods: vec![
                 MethodGraph {
                     name: "a".into(),

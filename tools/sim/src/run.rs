@@ -107,6 +107,9 @@ pub struct RunArgs {
     /// by the expert's cost to go: face the goal, then walk it).
     #[arg(long, default_value = "carry-back", value_parser = crate::episode::InterventionRule::named)]
     pub intervention_rule: crate::episode::InterventionRule,
+    /// The robot's disc footprint (m); a Jackal is about 0.25.
+    #[arg(long, default_value_t = crate::robot::RobotLimits::default().radius_m)]
+    pub robot_radius_m: f64,
     #[arg(long, default_value = "out/sim")]
     pub out: PathBuf,
     /// Who drives: the graph's commands, or the expert (A* on the true map).
@@ -289,6 +292,7 @@ impl RunArgs {
             far_field_oracle: self.far_field_oracle,
             base_max_ttl_s: self.base_max_ttl_s,
             intervention: self.intervention_rule,
+            robot_radius_m: self.robot_radius_m,
         }
     }
 }

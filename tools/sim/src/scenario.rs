@@ -7,6 +7,7 @@
 //! | `bush-wall` | LRN | open field 82 m, a band of bushes across the straight line |
 //! | `road-forest` | FITAM Fig. 1 | forest, a road 60 m to the side that leads to the goal |
 //! | `obstacle-field-1`..`5` | POVNav Env1-Env5 | trees on a jittered grid, gaps 3 m down to 1 m |
+//! | `povnav-env-1`..`5` | POVNav section 5.2 | the same fields, start and goal drawn per seed on either side (the paper's 20 random start/goal pairs per environment) |
 //! | `random` | FITAM | land-cover noise: fields, grass, forest with trees, water, rocks, roads; rolling hills; 400 m, goal about 340 m away |
 //! | `random-long` | issue 20 | the same on 1.5 km, goal about 1.84 km away (long range) |
 
@@ -31,7 +32,7 @@ pub struct Scenario {
 
 /// Every named scenario (`random` and `random-long` take their sizes from
 /// [`random_world`]).
-pub const NAMES: [&str; 11] = [
+pub const NAMES: [&str; 16] = [
     "bug-trap",
     "bridge",
     "bush-wall",
@@ -41,6 +42,11 @@ pub const NAMES: [&str; 11] = [
     "obstacle-field-3",
     "obstacle-field-4",
     "obstacle-field-5",
+    "povnav-env-1",
+    "povnav-env-2",
+    "povnav-env-3",
+    "povnav-env-4",
+    "povnav-env-5",
     "random",
     "random-long",
 ];
@@ -146,6 +152,29 @@ pub fn scenario(name: &str, seed: u64) -> Result<Scenario, UnknownScenario> {
                 world: w,
                 start: [10.0, 30.0, 0.0],
                 goal: [90.0, 30.0],
+            }
+        }
+        n if n.starts_with("povnav-env-") => {
+            // POVNav section 5.2: Env1..Env5 with a random start and goal per
+            // trial. The field is obstacle-field-K's for the same seed; the
+            // start (x 5-15 m) and goal (x 85-95 m) are drawn on either side
+            // of it, anywhere along its 60 m, so the way across may be
+            // diagonal. The robot starts facing the goal.
+            let k = &n["povnav-env-".len()..];
+            let field = scenario(&format!("obstacle-field-{k}"), seed)
+                .map_err(|_| UnknownScenario(name.into()))?;
+            let mut pick = SplitMix64::new(seed ^ 0x90B5);
+            let start = [pick.range(5.0, 15.0), pick.range(8.0, 52.0)];
+            let goal = [pick.range(85.0, 95.0), pick.range(8.0, 52.0)];
+            Scenario {
+                name: name.into(),
+                start: [
+                    start[0],
+                    start[1],
+                    (goal[1] - start[1]).atan2(goal[0] - start[0]),
+                ],
+                goal,
+                ..field
             }
         }
         "random" => random_world(seed, 400),
@@ -310,6 +339,36 @@ mod tests {
         assert!(scenario("obstacle-field-9", 0).is_err());
         let e = scenario("moon", 0).unwrap_err().to_string();
         assert!(e.contains("moon") && e.contains("bug-trap"), "{e}");
+    }
+
+    #[test]
+    fn povnavs_environments_draw_a_start_and_goal_per_seed_across_the_same_field() {
+        let mut pairs = Vec::new();
+        for seed in 1..=20 {
+            let e = scenario("povnav-env-4", seed).unwrap();
+            let f = scenario("obstacle-field-4", seed).unwrap();
+            let lethal = |s: &Scenario| -> Vec<(i64, i64)> {
+                (0..100)
+                    .flat_map(|x| (0..60).map(move |y| (x, y)))
+                    .filter(|&(x, y)| s.world.lethal(x, y))
+                    .collect()
+            };
+            assert_eq!(lethal(&e), lethal(&f), "seed {seed}: the same field");
+            let (s, g) = (e.start, e.goal);
+            assert!((5.0..=15.0).contains(&s[0]) && (85.0..=95.0).contains(&g[0]));
+            assert!((8.0..=52.0).contains(&s[1]) && (8.0..=52.0).contains(&g[1]));
+            let (sx, sy) = e.world.cell_of(s[0], s[1]);
+            let (gx, gy) = e.world.cell_of(g[0], g[1]);
+            assert!(!e.world.lethal(sx, sy) && !e.world.lethal(gx, gy));
+            let facing = (g[1] - s[1]).atan2(g[0] - s[0]);
+            assert!((s[2] - facing).abs() < 1e-12, "starts facing the goal");
+            pairs.push((s[0].to_bits(), s[1].to_bits(), g[1].to_bits()));
+        }
+        pairs.sort();
+        pairs.dedup();
+        assert_eq!(pairs.len(), 20, "20 different start/goal pairs");
+        assert!(scenario("povnav-env-6", 1).is_err());
+        assert!(scenario("povnav-env-", 1).is_err());
     }
 
     #[test]

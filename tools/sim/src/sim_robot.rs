@@ -48,6 +48,9 @@ pub struct SimOptions {
     pub base_max_ttl_s: f64,
     /// When an operator steps in and what they do.
     pub intervention: crate::episode::InterventionRule,
+    /// The robot's disc footprint (m): 0.4 by default; a Clearpath Jackal
+    /// (0.43 m wide, POVNav section 5) is about 0.25.
+    pub robot_radius_m: f64,
 }
 
 impl Default for SimOptions {
@@ -66,6 +69,7 @@ impl Default for SimOptions {
             far_field_oracle: false,
             base_max_ttl_s: 1.0,
             intervention: Default::default(),
+            robot_radius_m: crate::robot::RobotLimits::default().radius_m,
         }
     }
 }
@@ -138,10 +142,20 @@ impl SimRobot {
             tolerance_m: 2.0,
             ..Default::default()
         };
+        ensure!(
+            options.robot_radius_m.is_finite() && options.robot_radius_m > 0.0,
+            "--robot-radius-m {}: expected a radius above 0 m",
+            options.robot_radius_m
+        );
+        let defaults = EpisodeConfig::default();
         let config = EpisodeConfig {
             max_time_s: options.max_time_s,
             intervention: options.intervention,
-            ..Default::default()
+            limits: crate::robot::RobotLimits {
+                radius_m: options.robot_radius_m,
+                ..defaults.limits
+            },
+            ..defaults
         };
         Ok(Self {
             episode: Episode::new(s, config),
