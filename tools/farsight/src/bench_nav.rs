@@ -72,7 +72,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// The benchmark's rows: name and graph file (relative to the repository).
-pub const METHODS: [(&str, &str); 11] = [
+pub const METHODS: [(&str, &str); 14] = [
     ("lrn_learned", "graphs/sim/lrn.toml"),
     ("goal_heuristic", "graphs/sim/lrn-goal-heuristic.toml"),
     ("dstar_no_far_field", "graphs/sim/dstar-lite.toml"),
@@ -90,6 +90,9 @@ pub const METHODS: [(&str, &str); 11] = [
         "traversability_myopic",
         "graphs/sim/traversability-myopic.toml",
     ),
+    ("povnav_jackal", "graphs/sim/povnav-jackal.toml"),
+    ("povnav_jackal_pog_hog", "graphs/sim/povnav-jackal-pog-hog.toml"),
+    ("povnav_jackal_pog", "graphs/sim/povnav-jackal-pog.toml"),
 ];
 
 /// The simulator a graph asks for: a camera for each `camera/<name>/...`
@@ -571,7 +574,7 @@ mod tests {
             let (_, g) = METHODS.iter().find(|(n, _)| *n == m).unwrap();
             Graph::load(&crate::graph::repo_file(g).unwrap()).unwrap()
         };
-        let pairs: [(&str, &str, &[&str]); 5] = [
+        let pairs: [(&str, &str, &[&str]); 7] = [
             (
                 // FITAM's row against its "no far field" baseline: the far
                 // field (ground-truth bins) and fusion answering it. The
@@ -628,6 +631,17 @@ mod tests {
                     "node inference: hsv.ranges",
                     "node inference: model_config",
                 ],
+            ),
+            (
+                // POVNav section 5.3's ablations: which parts steer.
+                "povnav_jackal_pog_hog",
+                "povnav_jackal",
+                &["node subgoal-selection: povnav.components"],
+            ),
+            (
+                "povnav_jackal_pog",
+                "povnav_jackal",
+                &["node subgoal-selection: povnav.components"],
             ),
         ];
         let mut wrong = Vec::new();
