@@ -91,7 +91,10 @@ pub const METHODS: [(&str, &str); 14] = [
         "graphs/sim/traversability-myopic.toml",
     ),
     ("povnav_jackal", "graphs/sim/povnav-jackal.toml"),
-    ("povnav_jackal_pog_hog", "graphs/sim/povnav-jackal-pog-hog.toml"),
+    (
+        "povnav_jackal_pog_hog",
+        "graphs/sim/povnav-jackal-pog-hog.toml",
+    ),
     ("povnav_jackal_pog", "graphs/sim/povnav-jackal-pog.toml"),
 ];
 
