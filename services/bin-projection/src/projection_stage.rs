@@ -561,7 +561,7 @@ mod tests {
         let mut nav = vec![0u8; W * H];
         for v in 0..H {
             for u in 0..W {
-                if (u < W / 2 && v == H - 1) || u >= W / 2 {
+                if v == H - 1 || u >= W / 2 {
                     nav[v * W + u] = 255;
                 }
             }
