@@ -22,3 +22,4 @@ pub mod planner;
 pub mod povnav;
 pub mod stage;
 pub mod subgoal_stage;
+pub mod vmpp;

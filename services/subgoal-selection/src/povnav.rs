@@ -38,8 +38,11 @@ pub struct PovnavConfig {
     /// Largest look-ahead radius for the alignment feature (pixels);
     /// R = min(lambda / 2, max_lookahead_px) as the paper's section 4.8.
     pub max_lookahead_px: f64,
-    /// Which of POVNav's parts steer (its section 5.3 ablations).
+    /// Which of POVNav's parts steer (its section 5.3 ablations, or the
+    /// VMPP baseline).
     pub components: PovnavComponents,
+    /// VMPP's primitives and weights (`components = "vmpp"`).
+    pub vmpp: crate::vmpp::VmppConfig,
 }
 
 /// POVNav's parts that steer the robot (section 5.3's ablation rows). The
@@ -54,6 +57,9 @@ pub enum PovnavComponents {
     PogHog,
     /// "POG only": the robot aligns with the peripheral optic goal.
     Pog,
+    /// Not POVNav: its baseline VMPP (section 5.2.1, [`crate::vmpp`]), DWA's
+    /// motion primitives checked against the same horizon.
+    Vmpp,
 }
 
 impl Default for PovnavConfig {
@@ -66,6 +72,7 @@ impl Default for PovnavConfig {
             path_row_step: 4,
             max_lookahead_px: 120.0,
             components: PovnavComponents::Full,
+            vmpp: crate::vmpp::VmppConfig::default(),
         }
     }
 }
@@ -101,7 +108,8 @@ impl Validate for PovnavConfig {
             "max_lookahead_px",
             self.max_lookahead_px,
             Range::above_to(0.0, 10_000.0).unit("px"),
-        );
+        )
+        .nested("vmpp", &self.vmpp);
     }
 
     fn check_rules(&self) -> Result<(), ConfigError> {
@@ -347,19 +355,7 @@ pub fn plan(
         };
     };
 
-    // Proximity (Definition 8): nearest horizon pixel to the start.
-    let mut proximity = f64::INFINITY;
-    for u in 0..width {
-        let n = horizon.navigable_rows[u];
-        let v = (height - n).min(height - 1) as f64;
-        let (x, y) = to_plan(u as f64, v, width, height);
-        proximity = proximity.min(x.hypot(y));
-        if (u == 0 || u == width - 1) && n > 0 {
-            // Side border below the horizon: nearest is its bottom pixel.
-            let (x, y) = to_plan(u as f64, height as f64 - 1.0, width, height);
-            proximity = proximity.min(x.hypot(y));
-        }
-    }
+    let proximity = proximity_px(&horizon);
 
     // The ablations steer by a straight line to the POG or the HOG (their
     // alignment is its direction), with no safe-width check.
@@ -382,7 +378,8 @@ pub fn plan(
     match cfg.components {
         PovnavComponents::Pog => return straight_to(pog),
         PovnavComponents::PogHog => return straight_to(hog),
-        PovnavComponents::Full => {}
+        // The stage calls crate::vmpp::plan for VMPP; here it is POVNav.
+        PovnavComponents::Full | PovnavComponents::Vmpp => {}
     }
     let (path, mode) = visual_path(nav, width, height, hog, half_width_px, cfg);
     // Alignment (Definition 9): direction to the path point at radius R.
@@ -404,6 +401,25 @@ pub fn plan(
         alignment_rad: alignment,
         mode,
     }
+}
+
+/// The proximity feature lambda (Definition 8, pixels): the distance from
+/// the start (bottom centre) to the nearest horizon pixel.
+pub fn proximity_px(horizon: &VisualHorizon) -> f64 {
+    let (width, height) = (horizon.width, horizon.height);
+    let mut proximity = f64::INFINITY;
+    for u in 0..width {
+        let n = horizon.navigable_rows[u];
+        let v = (height - n).min(height - 1) as f64;
+        let (x, y) = to_plan(u as f64, v, width, height);
+        proximity = proximity.min(x.hypot(y));
+        if (u == 0 || u == width - 1) && n > 0 {
+            // Side border below the horizon: nearest is its bottom pixel.
+            let (x, y) = to_plan(u as f64, height as f64 - 1.0, width, height);
+            proximity = proximity.min(x.hypot(y));
+        }
+    }
+    proximity
 }
 
 /// The footprint test along one image row, with the horizon's noise rule

@@ -31,7 +31,7 @@
 use crate::hip::{choose, LibraryFile, Trajectory};
 use crate::lrn_head::{LrnHead, LrnHeadConfig};
 use crate::planner::WorldPlanner;
-use crate::povnav::{plan, safe_half_widths, Mode};
+use crate::povnav::{plan, safe_half_widths, Mode, PovnavComponents};
 use crate::stage::SubgoalStageConfig;
 use farsight_costmap_fusion::hip::hip_scaled_costmap;
 use farsight_inference::model_config::{ModelConfig, OutputKind};
@@ -209,6 +209,7 @@ impl StageKind for SubgoalStage {
                 visual_path_robot,
                 camera: None,
                 half_widths: None,
+                vmpp: None,
                 pending: None,
             })),
             MethodPorts::Heading => {
@@ -388,8 +389,29 @@ struct Povnav {
     visual_path_robot: usize,
     camera: Option<Camera>,
     half_widths: Option<((u32, u32), Vec<usize>)>,
+    /// VMPP's primitives and their arcs in the image (`povnav.components =
+    /// "vmpp"`), per image size.
+    vmpp: Option<VmppArcs>,
     /// A frame waiting for its guide's subgoal.
     pending: Option<Image>,
+}
+
+/// The pixel where the ground point (x ahead, y left, metres, robot frame)
+/// appears in `camera`'s image; `None` behind it.
+fn ground_pixel(camera: &Camera, x_m: f64, y_m: f64) -> Option<(f64, f64)> {
+    let rel = nalgebra::Vector3::new(x_m, y_m, 0.0) - camera.mount.translation_m;
+    let optical = camera
+        .mount
+        .robot_from_optical
+        .inverse_transform_vector(&rel);
+    camera.model.project(&optical).map(|p| (p.x, p.y))
+}
+
+/// VMPP's motion primitives and each arc point's pixel, for one image size.
+struct VmppArcs {
+    size: (u32, u32),
+    primitives: Vec<crate::vmpp::Primitive>,
+    pixels: Vec<Vec<Option<(f64, f64)>>>,
 }
 
 impl Povnav {
@@ -469,14 +491,45 @@ impl Povnav {
             self.half_widths = Some((size, hw));
         }
         let hw = &self.half_widths.as_ref().expect("just set").1;
-        let p = plan(
-            &frame.data,
-            h.width as usize,
-            h.height as usize,
-            bearing,
-            hw,
-            &config.povnav,
-        );
+        let p = if config.povnav.components == PovnavComponents::Vmpp {
+            if self.vmpp.as_ref().is_none_or(|a| a.size != size) {
+                let primitives = crate::vmpp::primitives(&config.povnav.vmpp);
+                let pixels = primitives
+                    .iter()
+                    .map(|p| {
+                        p.ground_m
+                            .iter()
+                            .map(|&(x, y)| ground_pixel(&scaled, x, y))
+                            .collect()
+                    })
+                    .collect();
+                self.vmpp = Some(VmppArcs {
+                    size,
+                    primitives,
+                    pixels,
+                });
+            }
+            let arcs = self.vmpp.as_ref().expect("just set");
+            crate::vmpp::plan(
+                &frame.data,
+                h.width as usize,
+                h.height as usize,
+                bearing,
+                hw,
+                &arcs.primitives,
+                &arcs.pixels,
+                &config.povnav,
+            )
+        } else {
+            plan(
+                &frame.data,
+                h.width as usize,
+                h.height as usize,
+                bearing,
+                hw,
+                &config.povnav,
+            )
+        };
         let (gx, gy) = scaled
             .ground_point_m(p.hog_px.0, p.hog_px.1)
             .unwrap_or((f64::NAN, f64::NAN));
@@ -973,6 +1026,25 @@ mod tests {
     use farsight_stage::runtime::Harness;
     use farsight_stage::Wake;
     use std::path::PathBuf;
+
+    #[test]
+    fn a_ground_point_projects_back_to_the_pixel_it_came_from() {
+        let cam = Camera::new(
+            0,
+            "front",
+            CameraModel::pinhole(64, 48, 40.0, 40.0, 31.5, 23.5),
+            Mount::from_xyz_rpy_deg([0.2, 0.1, 1.0], [0.0, 15.0, 10.0]),
+        );
+        for (u, v) in [(10.0, 40.0), (31.5, 30.0), (60.0, 47.0)] {
+            let (x, y) = cam.ground_point_m(u, v).unwrap();
+            let (pu, pv) = ground_pixel(&cam, x, y).unwrap();
+            assert!(
+                (pu - u).abs() < 1e-6 && (pv - v).abs() < 1e-6,
+                "({u}, {v}) -> ({pu}, {pv})"
+            );
+        }
+        assert_eq!(ground_pixel(&cam, -5.0, 0.0), None, "behind the camera");
+    }
 
     const S: u64 = 1_000_000_000;
     const MS: u64 = 1_000_000;

@@ -72,7 +72,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// The benchmark's rows: name and graph file (relative to the repository).
-pub const METHODS: [(&str, &str); 14] = [
+pub const METHODS: [(&str, &str); 15] = [
     ("lrn_learned", "graphs/sim/lrn.toml"),
     ("goal_heuristic", "graphs/sim/lrn-goal-heuristic.toml"),
     ("dstar_no_far_field", "graphs/sim/dstar-lite.toml"),
@@ -96,6 +96,7 @@ pub const METHODS: [(&str, &str); 14] = [
         "graphs/sim/povnav-jackal-pog-hog.toml",
     ),
     ("povnav_jackal_pog", "graphs/sim/povnav-jackal-pog.toml"),
+    ("vmpp_jackal", "graphs/sim/povnav-jackal-vmpp.toml"),
 ];
 
 /// The simulator a graph asks for: a camera for each `camera/<name>/...`
@@ -577,7 +578,7 @@ mod tests {
             let (_, g) = METHODS.iter().find(|(n, _)| *n == m).unwrap();
             Graph::load(&crate::graph::repo_file(g).unwrap()).unwrap()
         };
-        let pairs: [(&str, &str, &[&str]); 7] = [
+        let pairs: [(&str, &str, &[&str]); 8] = [
             (
                 // FITAM's row against its "no far field" baseline: the far
                 // field (ground-truth bins) and fusion answering it. The
@@ -643,6 +644,12 @@ mod tests {
             ),
             (
                 "povnav_jackal_pog",
+                "povnav_jackal",
+                &["node subgoal-selection: povnav.components"],
+            ),
+            (
+                // VMPP: DWA's primitives steer instead of HOG and path.
+                "vmpp_jackal",
                 "povnav_jackal",
                 &["node subgoal-selection: povnav.components"],
             ),
