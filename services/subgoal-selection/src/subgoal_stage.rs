@@ -418,7 +418,14 @@ impl Povnav {
     fn step(&mut self, cx: &mut Context, step: &mut Step<'_>) {
         if let Some(i) = step.inbox.take::<CameraInfo>(self.camera_info) {
             match Camera::from_info(&i) {
-                Ok(c) => self.camera = Some(c),
+                Ok(c) => {
+                    // Tables made for another model are stale.
+                    if self.camera.as_ref() != Some(&c) {
+                        self.half_widths = None;
+                        self.vmpp = None;
+                    }
+                    self.camera = Some(c);
+                }
                 Err(e) => step.health.dropped(&format_args!("camera info: {e}")),
             }
         }

@@ -154,6 +154,7 @@ pub fn choose(
         // Least clearance (rows from the point up to the horizon) along
         // the arc's seen points; `None` if a point is at or past the horizon.
         let mut clearance = h as f64;
+        let mut seen = false;
         let mut admissible = true;
         for &(u, v) in px.iter().flatten() {
             if u < 0.0 || u > w as f64 - 1.0 || v < 0.0 {
@@ -162,6 +163,7 @@ pub fn choose(
             if v > h as f64 - 1.0 {
                 continue; // under the robot, below the image
             }
+            seen = true;
             let (uc, vr) = (u.round() as usize, v.round() as usize);
             let hw = half_width_px.get(vr).copied().unwrap_or(0);
             let lo = uc.saturating_sub(hw);
@@ -178,6 +180,11 @@ pub fn choose(
         }
         if !admissible {
             continue;
+        }
+        if !seen {
+            // An arc the camera never sees earns no clearance: a blind turn
+            // must not beat a seen, clear way.
+            clearance = 0.0;
         }
         // Heading as progress: how far the arc's end gets along the goal's
         // direction, over the farthest any arc can. (The end yaw alone
@@ -197,7 +204,8 @@ pub fn choose(
 
 /// POVNav's plan with VMPP steering: the same horizon, POG and proximity
 /// (so the same speed law), the alignment toward the best primitive's arc
-/// at its end (the image point it drives for), the arc as the path.
+/// at its last seen pixel (the image point it drives for), the arc as the
+/// path.
 /// [`Mode::Blocked`] when no primitive is admissible: the robot stops and
 /// turns toward the POG, as POVNav's own blocked case.
 #[allow(clippy::too_many_arguments)]
@@ -214,6 +222,14 @@ pub fn plan(
     let horizon = visual_horizon(nav, width, height, cfg);
     let pog = peripheral_optic_goal(goal_bearing_rad, width, height);
     let start = ((width as f64 - 1.0) / 2.0, height as f64 - 1.0);
+    // POVNav's angle toward the POG, in the image (a POG at the start, the
+    // goal exactly behind, turns left), for the blocked case.
+    let (pxg, pyg) = to_plan(pog.0, pog.1, width, height);
+    let theta_g = if pxg.hypot(pyg) < 0.5 {
+        std::f64::consts::FRAC_PI_2
+    } else {
+        pyg.atan2(pxg)
+    };
     let Some((i, _)) = choose(
         &horizon,
         half_width_px,
@@ -227,7 +243,7 @@ pub fn plan(
             hog_px: start,
             path_px: vec![start],
             proximity_px: 0.0,
-            alignment_rad: goal_bearing_rad,
+            alignment_rad: theta_g,
             mode: Mode::Blocked,
         };
     };
@@ -241,15 +257,24 @@ pub fn plan(
         .collect();
     let mut path = vec![start];
     path.extend(&seen);
-    let end = prims[i].ground_m.last().copied().unwrap_or((1.0, 0.0));
     let hog = seen.last().copied().unwrap_or(start);
-    let _ = to_plan; // the image frame's conventions are POVNav's
+    // The alignment is an image angle, as POVNav's (the servo's gain is
+    // tuned for it): toward the arc's last seen pixel. An arc the image
+    // never shows, or one that turns more than half a circle, steers by its
+    // turn's side.
+    let p = &prims[i];
+    let (x, y) = to_plan(hog.0, hog.1, width, height);
+    let alignment = if (p.angular_radps * cfg.vmpp.horizon_s).abs() > PI || x.hypot(y) < 0.5 {
+        p.angular_radps.signum() * std::f64::consts::FRAC_PI_2
+    } else {
+        y.atan2(x)
+    };
     PovnavPlan {
         pog_px: pog,
         hog_px: hog,
         path_px: path,
         proximity_px: proximity_px(&horizon),
-        alignment_rad: end.1.atan2(end.0),
+        alignment_rad: alignment,
         mode: Mode::Safe,
     }
 }
@@ -311,14 +336,14 @@ mod tests {
                 "its arc misses the block: ({u}, {v})"
             );
         }
-        // Nothing navigable: at most a turn on the spot, whose arc never
-        // leaves the ground under the robot (below the image).
-        if let Some((i, _)) = run(&vec![0u8; w * h], 0.0) {
-            assert!(
-                pixels[i].iter().flatten().all(|&(_, v)| v > h as f64 - 1.0),
-                "{:?}",
-                prims[i]
-            );
-        }
+        // Nothing navigable: only a turn on the spot, whose arc never
+        // leaves the ground under the robot (below the image), is left.
+        let (i, _) = run(&vec![0u8; w * h], 0.0).expect("a turn on the spot");
+        assert!(
+            pixels[i].iter().flatten().all(|&(_, v)| v > h as f64 - 1.0),
+            "{:?}",
+            prims[i]
+        );
+        assert!(prims[i].angular_radps.abs() > 3.0, "{:?}", prims[i]);
     }
 }

@@ -298,6 +298,11 @@ pub fn run(a: NavArgs) -> Result<()> {
             "{flag} {v}: expected a standard deviation of 0 or more"
         );
     }
+    anyhow::ensure!(
+        a.robot_radius_m.is_finite() && a.robot_radius_m > 0.0,
+        "--robot-radius-m {}: expected a radius above 0 m",
+        a.robot_radius_m
+    );
     for sc in &a.scenarios {
         // An unknown name fails here, not after hours of other trials.
         farsight_sim::scenario::scenario(sc, 1)?;

@@ -108,8 +108,11 @@ pub struct OperatorRule {
     pub patience_s: f64,
     /// A new best must beat the old by this much (s of the expert's cost).
     pub min_gain_s: f64,
-    /// A walk ends this far below the best cost to go reached (s).
+    /// A walk ends this far below the best cost to go reached (s)...
     pub walk_gain_s: f64,
+    /// ...or this far (m) outside the goal radius: the operator hands the
+    /// robot back before the goal, whose last stretch it drives itself.
+    pub hand_back_m: f64,
 }
 
 impl Default for OperatorRule {
@@ -121,6 +124,7 @@ impl Default for OperatorRule {
             patience_s: 20.0,
             min_gain_s: 1.0,
             walk_gain_s: 10.0,
+            hand_back_m: 5.0,
         }
     }
 }
@@ -329,7 +333,9 @@ impl Episode {
             return;
         };
         let now = op.at(world, here);
-        if now <= op.best_s - op.rule.min_gain_s {
+        // An infinite cost to go (no way to the goal from here) is never
+        // progress, and inf <= inf would call it that.
+        if now.is_finite() && now <= op.best_s - op.rule.min_gain_s {
             op.best_s = now;
             op.since_s = self.time_s;
             op.faced = false;
@@ -351,7 +357,14 @@ impl Episode {
         // Facing the goal did not help: walk it down the cost to go.
         op.faced = false;
         let target = op.best_s - op.rule.walk_gain_s;
-        let walk = op.walk(world, here, target);
+        let stop = Stop {
+            goal: self.scenario.goal,
+            // The last stretch is the robot's own to drive: a walk that
+            // ended at the goal would count as reached.
+            short_of_goal_m: self.config.goal_radius_m + op.rule.hand_back_m,
+            radius_m: self.config.limits.radius_m,
+        };
+        let walk = op.walk(world, here, target, &stop);
         if let Some(&end) = walk.last() {
             let prev = if walk.len() > 1 {
                 walk[walk.len() - 2]
@@ -458,25 +471,50 @@ impl Operator {
             .unwrap_or(f64::INFINITY)
     }
 
-    /// Cell centres from `from` down the cost to go (each step to the
-    /// cheapest neighbour that is not lethal) until it is at most
-    /// `target_s`, the goal is reached, or no neighbour is cheaper.
-    fn walk(&self, world: &crate::world::World, from: [f64; 2], target_s: f64) -> Vec<[f64; 2]> {
+    /// Cell centres from `from` down the cost to go until it is at most
+    /// `target_s`, the walk is `stop.short_of_goal_m` from the goal, or no
+    /// step goes lower. A step goes to a neighbour where the robot's disc
+    /// fits, never diagonally past a lethal cell's corner (the cost to go's
+    /// own rule), so a walk never crosses an obstacle.
+    fn walk(
+        &self,
+        world: &crate::world::World,
+        from: [f64; 2],
+        target_s: f64,
+        stop: &Stop,
+    ) -> Vec<[f64; 2]> {
         let r = world.resolution_m;
         let (mut x, mut y) = world.cell_of(from[0], from[1]);
         let mut out = Vec::new();
+        let centre = |x: i64, y: i64| [x as f64 * r, y as f64 * r];
         let cost = |x: i64, y: i64| {
-            if world.contains(x, y) && !world.lethal(x, y) {
+            let [cx, cy] = centre(x, y);
+            if world.contains(x, y)
+                && !world.lethal(x, y)
+                && Robot::footprint_free(world, cx, cy, stop.radius_m)
+            {
                 self.cost_to_go_s[y as usize * world.width + x as usize]
             } else {
                 f64::INFINITY
             }
         };
-        let mut c = cost(x, y);
-        while c > target_s && c > 0.0 {
+        let near_goal = |x: i64, y: i64| {
+            let [cx, cy] = centre(x, y);
+            (cx - stop.goal[0]).hypot(cy - stop.goal[1]) <= stop.short_of_goal_m
+        };
+        if !world.contains(x, y) {
+            return out;
+        }
+        let mut c = self.cost_to_go_s[y as usize * world.width + x as usize];
+        while c.is_finite() && c > target_s && !near_goal(x, y) {
             let mut next = (x, y, c);
             for dy in -1..=1 {
                 for dx in -1..=1 {
+                    let corner_cut =
+                        dx != 0 && dy != 0 && (world.lethal(x + dx, y) || world.lethal(x, y + dy));
+                    if corner_cut {
+                        continue;
+                    }
                     let n = cost(x + dx, y + dy);
                     if n < next.2 {
                         next = (x + dx, y + dy, n);
@@ -487,10 +525,17 @@ impl Operator {
                 break;
             }
             (x, y, c) = next;
-            out.push([x as f64 * r, y as f64 * r]);
+            out.push(centre(x, y));
         }
         out
     }
+}
+
+/// Where an operator's walk must end besides its cost target.
+struct Stop {
+    goal: [f64; 2],
+    short_of_goal_m: f64,
+    radius_m: f64,
 }
 
 fn goal_distance(r: &Robot, s: &Scenario) -> f64 {
@@ -652,6 +697,70 @@ mod tests {
         assert!(InterventionRule::named("walk")
             .unwrap_err()
             .contains("\"walk\""));
+    }
+
+    #[test]
+    fn the_operator_hands_back_before_the_goal_steps_in_where_no_way_leads_and_walks_round_walls() {
+        use crate::world::{Cover, Obstacle, World};
+        let operator = EpisodeConfig {
+            max_time_s: 200.0,
+            intervention: InterventionRule::named("operator").unwrap(),
+            ..Default::default()
+        };
+        let still = |s: Scenario| {
+            let mut e = Episode::new(s, operator);
+            while e.step((0.0, 0.0), 0.1) == Outcome::Driving {}
+            e
+        };
+        // A robot that never moves, 15 m from the goal on open grass: walked
+        // to 7 m (goal radius 2 + 5 m), never onto the goal.
+        let mut near = scenario("bug-trap", 1).unwrap();
+        near.world = World::new(120, 100, Cover::Grass);
+        near.start = [65.0, 50.0, 0.0];
+        let e = still(near);
+        assert_eq!(e.outcome(), Outcome::TimedOut);
+        let d = e.goal_distance_m();
+        assert!((6.0..=8.0).contains(&d), "handed back {d} m from the goal");
+
+        // The goal walled in: no way leads there, yet the operator steps in.
+        let mut sealed = scenario("bug-trap", 1).unwrap();
+        for (a, b) in [
+            ((78, 48), (82, 48)),
+            ((78, 52), (82, 52)),
+            ((78, 48), (78, 52)),
+            ((82, 48), (82, 52)),
+        ] {
+            sealed.world.line_obstacle(a, b, Obstacle::Wall);
+        }
+        let e = still(sealed);
+        assert!(e.interventions >= 4, "{:?}", e.summary());
+
+        // A diagonal wall of cells touching only at their corners, between
+        // the robot and the goal: the walk goes round it, never through.
+        let mut stair = scenario("bug-trap", 1).unwrap();
+        stair.world = World::new(120, 100, Cover::Grass);
+        for i in 0..60 {
+            stair.world.set_obstacle(40 + i, 20 + i, Obstacle::Wall);
+        }
+        stair.start = [50.0, 50.0, 0.0]; // above the wall's line
+        stair.goal = [80.0, 30.0]; // below it
+        let e = still(stair);
+        assert!(e.interventions >= 1);
+        assert!(
+            e.track.iter().any(|p| p[0] < 40.0),
+            "walked round the wall's end: {:?}",
+            e.track
+        );
+        let side = |p: &[f64; 2]| (p[1] - 20.0) - (p[0] - 40.0);
+        for w in e.track.windows(2) {
+            let beside_wall = (40.0..=99.0).contains(&w[0][0]) && (40.0..=99.0).contains(&w[1][0]);
+            assert!(
+                !beside_wall || side(&w[0]) * side(&w[1]) > 0.0,
+                "crossed the wall between {:?} and {:?}",
+                w[0],
+                w[1]
+            );
+        }
     }
 
     #[test]
