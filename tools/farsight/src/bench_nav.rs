@@ -52,8 +52,11 @@
 //!
 //! Metrics per trial come from `farsight_sim::episode`; the table gives the
 //! success rate with a 95% Wilson interval and means with 95% normal
-//! intervals (path length, time, traversal cost and time over the expert's
-//! over the successful trials; interventions over all).
+//! intervals: over the successful trials, path length, time, traversal
+//! cost, time and distance over the expert's (LRN section IV's
+//! suboptimality) and path length minus the shortest obstacle-free path
+//! for the robot's disc (POVNav section 5's deviation); over all trials,
+//! interventions, also per km of straight line.
 
 use crate::bench::NavArgs;
 use crate::bench_record::{
@@ -63,7 +66,7 @@ use crate::graph::Graph;
 use crate::lockstep::{self, Trial};
 use anyhow::{anyhow, Context, Result};
 use farsight_sim::episode::{EpisodeConfig, InterventionRule, Outcome};
-use farsight_sim::expert::{expert_plan, ExpertPlan, TimeLimitRule};
+use farsight_sim::expert::{expert_plan, shortest_path_m, ExpertPlan, TimeLimitRule};
 use farsight_sim::render::{map_picture, MapMarks};
 use farsight_sim::scenario::Scenario;
 use farsight_sim::sim_robot::SimOptions;
@@ -398,6 +401,12 @@ pub fn run(a: NavArgs) -> Result<()> {
                         .hypot(scenario.goal[1] - scenario.start[1]),
                     expert_time_s: expert_s,
                     expert_distance_m: expert.as_ref().map(|e| path_length_m(&e.path)),
+                    shortest_path_m: shortest_path_m(
+                        &scenario.world,
+                        [scenario.start[0], scenario.start[1]],
+                        scenario.goal,
+                        a.robot_radius_m,
+                    ),
                     time_limit_s: limit,
                     frames: t.frames,
                     frames_without_command: t.late,

@@ -103,6 +103,32 @@ pub fn expert_cost_to_go(world: &World, goal: [f64; 2]) -> Vec<f64> {
     }
 }
 
+/// The length (m) of the shortest path from `start` to `goal` for a disc
+/// of `radius_m`: 8-connected over cell centres where the disc fits, never
+/// diagonally past a blocked cell's corner, every metre alike (terrain
+/// costs ignored). POVNav's path-length yardstick: "the deviation from the
+/// shortest obstacle-free path". `None` when no such path exists.
+pub fn shortest_path_m(
+    world: &World,
+    start: [f64; 2],
+    goal: [f64; 2],
+    radius_m: f64,
+) -> Option<f64> {
+    let (s, g) = (grid_cell(world, start)?, grid_cell(world, goal)?);
+    let r = world.resolution_m;
+    let mut grid = CostGrid::new(world.width, world.height, r, 1.0);
+    for y in 0..world.height {
+        for x in 0..world.width {
+            let fits =
+                crate::robot::Robot::footprint_free(world, x as f64 * r, y as f64 * r, radius_m);
+            if !fits && (x, y) != s && (x, y) != g {
+                grid.set(x, y, f32::INFINITY);
+            }
+        }
+    }
+    astar(&grid, s, g, 1.0).map(|(_, cost_s)| cost_s)
+}
+
 /// Time to drive along `path` (cell centres) at the fastest speed the
 /// simulated robot may drive, as it enforces it (`crate::robot`): in a cell
 /// costing c s/m at most min(1 / c, `max_linear_mps`). Each step between two
@@ -262,6 +288,29 @@ mod tests {
         // A diagonal step on open road: sqrt(2) x 0.5 s/m.
         let d = traversal_time_s(&w, &[[1.0, 1.0], [2.0, 2.0]], 2.0);
         assert!((d - std::f64::consts::SQRT_2 * 0.5).abs() < 1e-12, "{d}");
+    }
+
+    #[test]
+    fn the_shortest_path_ignores_terrain_and_needs_room_for_the_disc() {
+        // Bushes cost nothing extra here: straight across, 7 m.
+        let w = road_with_bushes();
+        let d = shortest_path_m(&w, [2.0, 3.0], [9.0, 3.0], 0.25).unwrap();
+        assert!((d - 7.0).abs() < 1e-9, "{d}");
+        // A wall at x = 5 with a 1-cell gap at y = 6: a 0.25 m disc passes
+        // (2 diagonals up, 1 up, 2 across the gap straight, since no
+        // diagonal passes a wall's corner, 3 diagonals down:
+        // 3 + 5 sqrt 2 = 10.07 m), a 0.6 m one not.
+        let mut walled = World::new(12, 8, Cover::Grass);
+        for y in 0..6 {
+            walled.set_obstacle(5, y, crate::world::Obstacle::Wall);
+        }
+        walled.set_obstacle(5, 7, crate::world::Obstacle::Wall);
+        let d = shortest_path_m(&walled, [2.0, 3.0], [9.0, 3.0], 0.25).unwrap();
+        assert!(
+            (d - (3.0 + 5.0 * std::f64::consts::SQRT_2)).abs() < 1e-9,
+            "{d}"
+        );
+        assert_eq!(shortest_path_m(&walled, [2.0, 3.0], [9.0, 3.0], 0.6), None);
     }
 
     #[test]
