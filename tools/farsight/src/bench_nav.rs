@@ -406,6 +406,7 @@ pub fn run(a: NavArgs) -> Result<()> {
                         [scenario.start[0], scenario.start[1]],
                         scenario.goal,
                         a.robot_radius_m,
+                        EpisodeConfig::default().goal_radius_m,
                     ),
                     time_limit_s: limit,
                     frames: t.frames,

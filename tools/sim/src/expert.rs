@@ -109,12 +109,15 @@ pub fn expert_cost_to_go(world: &World, goal: [f64; 2]) -> Vec<f64> {
 /// blocked cell's corner), then pulled straight wherever the disc fits
 /// along the chord, so it is not longer than an any-angle path by the
 /// grid's 45-degree bends. POVNav's path-length yardstick: "the deviation
-/// from the shortest obstacle-free path". `None` when no such path exists.
+/// from the shortest obstacle-free path". Measured from the exact start to
+/// where the path first comes within `goal_radius_m` of the goal, as a
+/// drive ends. `None` when no such path exists.
 pub fn shortest_path_m(
     world: &World,
     start: [f64; 2],
     goal: [f64; 2],
     radius_m: f64,
+    goal_radius_m: f64,
 ) -> Option<f64> {
     let (s, g) = (grid_cell(world, start)?, grid_cell(world, goal)?);
     let r = world.resolution_m;
@@ -132,10 +135,14 @@ pub fn shortest_path_m(
     // The grid's path bends at 45 degrees; a straight line need not. Pull
     // the string: from each kept point, go to the farthest later point in
     // clear sight (the disc fits every 0.1 m along the segment).
-    let pts: Vec<[f64; 2]> = cells
-        .iter()
-        .map(|&(x, y)| [x as f64 * r, y as f64 * r])
-        .collect();
+    // From the exact start to the exact goal, through the cells between.
+    let mut pts = vec![start];
+    pts.extend(
+        cells[1..cells.len().saturating_sub(1)]
+            .iter()
+            .map(|&(x, y)| [x as f64 * r, y as f64 * r]),
+    );
+    pts.push(goal);
     let clear = |a: [f64; 2], b: [f64; 2]| {
         let n = ((b[0] - a[0]).hypot(b[1] - a[1]) / 0.1).ceil().max(1.0) as usize;
         (0..=n).all(|k| {
@@ -148,14 +155,36 @@ pub fn shortest_path_m(
             )
         })
     };
-    let (mut i, mut length_m) = (0, 0.0);
+    let mut pulled = vec![pts[0]];
+    let mut i = 0;
     while i + 1 < pts.len() {
         let mut j = i + 1;
         while j + 1 < pts.len() && clear(pts[i], pts[j + 1]) {
             j += 1;
         }
-        length_m += (pts[j][0] - pts[i][0]).hypot(pts[j][1] - pts[i][1]);
+        pulled.push(pts[j]);
         i = j;
+    }
+    // A drive ends on reaching the goal radius: measure to where the path
+    // first comes that close.
+    let d_goal = |p: [f64; 2]| (p[0] - goal[0]).hypot(p[1] - goal[1]);
+    let mut length_m = 0.0;
+    for w in pulled.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let seg = (b[0] - a[0]).hypot(b[1] - a[1]);
+        if d_goal(b) <= goal_radius_m {
+            // The segment's first point within the radius (a is outside).
+            let (dx, dy) = (
+                (b[0] - a[0]) / seg.max(1e-12),
+                (b[1] - a[1]) / seg.max(1e-12),
+            );
+            let (fx, fy) = (a[0] - goal[0], a[1] - goal[1]);
+            let bq = fx * dx + fy * dy;
+            let c = fx * fx + fy * fy - goal_radius_m * goal_radius_m;
+            let t = (-bq - (bq * bq - c).max(0.0).sqrt()).clamp(0.0, seg);
+            return Some(length_m + t);
+        }
+        length_m += seg;
     }
     Some(length_m)
 }
@@ -326,10 +355,13 @@ mod tests {
         // Bushes cost nothing extra here: straight across, 7 m; and a
         // diagonal that the grid would bend is straight: (1, 0) to (11, 5).
         let w = road_with_bushes();
-        let d = shortest_path_m(&w, [2.0, 3.0], [9.0, 3.0], 0.25).unwrap();
-        assert!((d - 7.0).abs() < 1e-9, "{d}");
-        let d = shortest_path_m(&w, [1.0, 0.0], [11.0, 5.0], 0.25).unwrap();
-        assert!((d - 125f64.sqrt()).abs() < 1e-9, "{d}");
+        let d = shortest_path_m(&w, [2.0, 3.0], [9.0, 3.0], 0.25, 0.0).unwrap();
+        assert!((d - 7.0).abs() < 1e-6, "{d}");
+        // A drive ends 2 m from the goal: 5 m.
+        let d = shortest_path_m(&w, [2.0, 3.0], [9.0, 3.0], 0.25, 2.0).unwrap();
+        assert!((d - 5.0).abs() < 1e-6, "{d}");
+        let d = shortest_path_m(&w, [1.0, 0.0], [11.0, 5.0], 0.25, 0.0).unwrap();
+        assert!((d - 125f64.sqrt()).abs() < 1e-6, "{d}");
         // A wall at x = 5 with a 1-cell gap at y = 6: a 0.25 m disc passes
         // through it, nearer the straight chords through the gap's centre
         // ((2, 3) -> (5, 6) -> (9, 3): 3 sqrt 2 + 5 = 9.24 m) than the
@@ -339,9 +371,12 @@ mod tests {
             walled.set_obstacle(5, y, crate::world::Obstacle::Wall);
         }
         walled.set_obstacle(5, 7, crate::world::Obstacle::Wall);
-        let d = shortest_path_m(&walled, [2.0, 3.0], [9.0, 3.0], 0.25).unwrap();
+        let d = shortest_path_m(&walled, [2.0, 3.0], [9.0, 3.0], 0.25, 0.0).unwrap();
         assert!(d > 9.2 && d < 10.0, "{d}");
-        assert_eq!(shortest_path_m(&walled, [2.0, 3.0], [9.0, 3.0], 0.6), None);
+        assert_eq!(
+            shortest_path_m(&walled, [2.0, 3.0], [9.0, 3.0], 0.6, 0.0),
+            None
+        );
     }
 
     #[test]
