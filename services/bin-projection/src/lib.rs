@@ -210,23 +210,23 @@ pub fn ground_range_table(camera: &Camera, width: usize, height: usize, cap_m: f
     out
 }
 
-/// LRN section IV-D's "Traversability + Depth" heatmap: each navigable
-/// pixel (mono8 at least 128) scores its range over the farthest navigable
-/// pixel's, the rest 0. All zeros when nothing navigable has a range.
-pub fn traversability_depth_heatmap(navigability: &[u8], range_m: &[f32]) -> Vec<f32> {
-    let kept = |i: usize| {
-        if navigability[i] >= 128 {
-            range_m[i]
-        } else {
-            0.0
-        }
-    };
+/// LRN section IV-D's "Traversability + Depth" heatmap into `out` (reused
+/// frame to frame): each navigable pixel (mono8 at least 128) scores its
+/// range over the farthest navigable pixel's, the rest 0. All zeros when
+/// nothing navigable has a range.
+pub fn traversability_depth_heatmap(navigability: &[u8], range_m: &[f32], out: &mut Vec<f32>) {
     let n = navigability.len().min(range_m.len());
-    let far = (0..n).map(kept).fold(0.0f32, f32::max);
-    if far <= 0.0 {
-        return vec![0.0; n];
+    out.clear();
+    out.extend(
+        navigability[..n]
+            .iter()
+            .zip(&range_m[..n])
+            .map(|(&nav, &r)| if nav >= 128 { r } else { 0.0 }),
+    );
+    let far = out.iter().copied().fold(0.0f32, f32::max);
+    if far > 0.0 {
+        out.iter_mut().for_each(|v| *v /= far);
     }
-    (0..n).map(|i| kept(i) / far).collect()
 }
 
 /// Where LRN's `h_thresh` applies. The paper's text thresholds bin scores; its
@@ -387,12 +387,11 @@ mod tests {
 
     #[test]
     fn the_traversability_heatmap_is_navigable_range_over_the_farthest() {
-        let h = traversability_depth_heatmap(&[255, 255, 0, 200, 90], &[2.0, 8.0, 50.0, 4.0, 9.0]);
+        let mut h = Vec::new();
+        traversability_depth_heatmap(&[255, 255, 0, 200, 90], &[2.0, 8.0, 50.0, 4.0, 9.0], &mut h);
         assert_eq!(h, vec![0.25, 1.0, 0.0, 0.5, 0.0]);
-        assert_eq!(
-            traversability_depth_heatmap(&[0, 255], &[3.0, 0.0]),
-            vec![0.0, 0.0]
-        );
+        traversability_depth_heatmap(&[0, 255], &[3.0, 0.0], &mut h);
+        assert_eq!(h, vec![0.0, 0.0], "the buffer is refilled, not appended to");
         // 1 m up, level: the lower half meets the ground, nearer lower down;
         // the upper half never does.
         let cam = Camera::new(

@@ -97,6 +97,8 @@ struct Lrn {
     /// With [`LrnInput::Navigability`], per camera: its size and each
     /// pixel's flat-ground range.
     ranges: Vec<Option<(usize, usize, Vec<f32>)>>,
+    /// The navigability's heatmap, reused frame to frame.
+    scratch: Vec<f32>,
     /// Each camera's latest projection; a camera that stops sending drops
     /// out instead of holding its bins forever.
     latest: Vec<Option<Projection>>,
@@ -168,6 +170,7 @@ impl StageKind for ProjectionStage {
                 range_cap_m: config.bins.range_cap_m,
                 tables: vec![None; n],
                 ranges: vec![None; n],
+                scratch: Vec::new(),
                 latest: vec![None; n],
                 bins: LrnBins::new(geometry, config.bins),
             });
@@ -352,8 +355,8 @@ impl Lrn {
                 Some(r) if (r.0, r.1) == (w, hh) => r,
                 slot => slot.insert((w, hh, ground_range_table(cam, w, hh, self.range_cap_m))),
             };
-            let values = traversability_depth_heatmap(&heatmap.data, range_m);
-            self.latest[i] = Some(table.project(&values, self.pixel_threshold));
+            traversability_depth_heatmap(&heatmap.data, range_m, &mut self.scratch);
+            self.latest[i] = Some(table.project(&self.scratch, self.pixel_threshold));
             return Ok(h.stamp);
         }
         // Read the heatmap in place; copy only if the bytes are not

@@ -118,7 +118,8 @@ impl Validate for PovnavConfig {
             "povnav.opening_columns",
             self.opening_columns,
             "an odd number of columns",
-        )
+        )?;
+        self.vmpp.check_rules()
     }
 }
 

@@ -16,7 +16,7 @@ use crate::povnav::{
     peripheral_optic_goal, proximity_px, to_plan, visual_horizon, Mode, PovnavConfig, PovnavPlan,
     VisualHorizon,
 };
-use farsight_stage::{Range, Ranges, Validate};
+use farsight_stage::{ConfigError, Range, Ranges, Validate};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
@@ -92,7 +92,27 @@ impl Validate for VmppConfig {
         .key("w_clearance", self.w_clearance, Range::between(0.0, 100.0))
         .key("w_velocity", self.w_velocity, Range::between(0.0, 100.0));
     }
+
+    /// The primitives' arc points are allocated at start-up and projected
+    /// every frame: bounded before anything is allocated.
+    fn check_rules(&self) -> Result<(), ConfigError> {
+        let points = (self.horizon_s / self.step_s).ceil()
+            * self.linear_samples as f64
+            * self.angular_samples as f64;
+        ConfigError::check(
+            points <= MAX_ARC_POINTS,
+            "povnav.vmpp.horizon_s / step_s",
+            format!(
+                "{} s / {} s x {} x {} primitives = {points} arc points",
+                self.horizon_s, self.step_s, self.linear_samples, self.angular_samples
+            ),
+            "at most 100000 arc points in all",
+        )
+    }
 }
+
+/// The most arc points all primitives together may have.
+const MAX_ARC_POINTS: f64 = 100_000.0;
 
 /// One motion primitive: a constant (v, w) for `horizon_s`, its arc's
 /// points on the ground (robot frame: x ahead, y left) and its end heading.
@@ -288,6 +308,18 @@ mod tests {
     /// x = (40 - v) / 4 m ahead, y = (30 - u) / 4 m left.
     fn top_down(x: f64, y: f64) -> Option<(f64, f64)> {
         Some((30.0 - 4.0 * y, 40.0 - 4.0 * x))
+    }
+
+    #[test]
+    fn too_many_arc_points_are_refused_by_name_before_any_is_made() {
+        let e = farsight_stage::parse_config::<crate::stage::SubgoalStageConfig>(
+            "[povnav.vmpp]\nstep_s = 0.000001",
+            "s.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("povnav.vmpp.horizon_s / step_s"), "{e}");
+        assert!(VmppConfig::default().check_rules().is_ok());
     }
 
     #[test]
