@@ -10,9 +10,10 @@
 //! (`graphs/sim/fitam-gt.toml`'s costmap-fusion node), so the protocol
 //! plans on the map the graph would build. Rows: *No FF*, *GT FF* (labels
 //! from the true world over a full 360 degrees, as the paper's panoramas),
-//! *Perfect Vision* (local observations out to 100 m). The learned model's
-//! row needs a 360 degree camera rig the simulator does not render yet; it
-//! is not in this table.
+//! *Learned FF* (the shipped far-field model of `graphs/sim/fitam.toml` on
+//! a rig of four 120 degree cameras all round the robot,
+//! [`crate::fitam_rig`]), *Perfect Vision* (local observations out to
+//! 100 m).
 //!
 //! Decided before measured (issue 20, item 7), with `bench nav`'s
 //! bookkeeping ([`crate::bench_record`]): the [`FitamProtocol`] (world
@@ -23,12 +24,13 @@
 //! versions, parameters, graphs or commits.
 
 use crate::bench_record::{self as record, Decided, Keyed, MethodGraph, Results, Shard};
+use crate::fitam_rig::{LearnedGraph, LearnedRig};
 use crate::graph::Graph;
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use clap::Args;
 use farsight_costmap_fusion::stage::FusionStageConfig;
 use farsight_sim::fitam_protocol::{
-    paired_against, sample_problems, sense_plan_act, MeanCi, ProtocolConfig, Row,
+    paired_against, sample_problems, sense_plan_act, FarFieldSource, MeanCi, ProtocolConfig, Row,
 };
 use farsight_sim::scenario::random_world;
 use serde::{Deserialize, Serialize};
@@ -66,6 +68,14 @@ pub struct FitamArgs {
     /// The graph whose costmap-fusion config the map uses.
     #[arg(long, default_value = "graphs/sim/fitam-gt.toml")]
     pub graph: PathBuf,
+    /// The learned row's graph: its inference node's far-field model and
+    /// its bin-projection node's FITAM bins.
+    #[arg(long, default_value = "graphs/sim/fitam.toml")]
+    pub learned_graph: PathBuf,
+    /// The learned row's cameras, all round the robot (the simulator's
+    /// mounts: front, left, right, rear; 120 degrees each).
+    #[arg(long, value_delimiter = ',', default_value = "front,left,right,rear")]
+    pub rig: Vec<String>,
     /// Run only the K-th of N parts of the worlds (world k is in part
     /// ((k - 1) mod N) + 1), e.g. one per array job.
     #[arg(long)]
@@ -92,6 +102,18 @@ pub struct FitamProtocol {
     pub rows: Vec<String>,
     /// The graph the far-field filter's constants come from.
     pub graph: MethodGraph,
+    /// The learned row's graph, model file and cameras, when it runs.
+    #[serde(default)]
+    pub learned: Option<LearnedProtocol>,
+}
+
+/// What the learned row's numbers depend on besides the agent.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LearnedProtocol {
+    pub graph: MethodGraph,
+    /// The ONNX file its model config names.
+    pub model: MethodGraph,
+    pub rig: Vec<String>,
 }
 
 /// One trial of the list: world seed, problem and row.
@@ -132,6 +154,10 @@ impl Decided for FitamProtocol {
             ),
             ("protocol.rows", format!("{:?}", self.rows)),
             ("protocol.graph (path, hash)", format!("{:?}", self.graph)),
+            (
+                "protocol.learned (graph, model, rig)",
+                format!("{:?}", self.learned),
+            ),
         ]
     }
 
@@ -238,6 +264,7 @@ fn paper(row: Row) -> &'static str {
     match row {
         Row::NoFarField => "failed 0.71%",
         Row::GroundTruthFarField => "92.5 ± 0.4 / 19.2 ± 0.3 / 0.72",
+        Row::LearnedFarField => "92.5 ± 0.4 / 19.1 ± 0.3 / 0.74",
         Row::PerfectVision => "95.7 ± 0.3 / 24.7 ± 0.3 / 0.33",
     }
 }
@@ -358,8 +385,20 @@ fn check_args(a: &FitamArgs) -> Result<()> {
 }
 
 /// The protocol of a run with these arguments.
-fn protocol(a: &FitamArgs, rows: &[Row]) -> Result<FitamProtocol> {
+fn protocol(a: &FitamArgs, rows: &[Row], learned: Option<&LearnedGraph>) -> Result<FitamProtocol> {
     let path = graph_file(&a.graph)?;
+    let learned = match learned {
+        Some(l) => Some(LearnedProtocol {
+            graph: MethodGraph::read(
+                "learned_far_field",
+                &a.learned_graph.to_string_lossy(),
+                &graph_file(&a.learned_graph)?,
+            )?,
+            model: MethodGraph::read("model", &l.model_file.to_string_lossy(), &l.model_file)?,
+            rig: a.rig.clone(),
+        }),
+        None => None,
+    };
     Ok(FitamProtocol {
         world_generator: farsight_sim::scenario::WORLD_GENERATOR_VERSION,
         agent_rules: farsight_sim::fitam_protocol::AGENT_RULES_VERSION,
@@ -370,15 +409,44 @@ fn protocol(a: &FitamArgs, rows: &[Row]) -> Result<FitamProtocol> {
         edge_margin_m: a.edge_margin_m,
         rows: rows.iter().map(|r| r.name().to_string()).collect(),
         graph: MethodGraph::read("far_field_filter", &a.graph.to_string_lossy(), &path)?,
+        learned,
     })
+}
+
+/// The learned row's graph, checked against the protocol's geometry and
+/// far-field filter (every row is fused by one filter, or the pairing
+/// would compare filters too).
+fn learned_graph(a: &FitamArgs, cfg: &ProtocolConfig) -> Result<LearnedGraph> {
+    let path = graph_file(&a.learned_graph)?;
+    let own = protocol_config(&a.learned_graph)?;
+    if own.far_field != cfg.far_field {
+        bail!(
+            "{}'s costmap-fusion far-field filter differs from {}'s: {:?} vs {:?}",
+            path.display(),
+            a.graph.display(),
+            own.far_field,
+            cfg.far_field
+        );
+    }
+    if a.rig.is_empty() {
+        bail!("--rig: name at least one camera");
+    }
+    for name in &a.rig {
+        farsight_sim::run::named_camera(name, 1, 1).context("--rig")?;
+    }
+    LearnedGraph::load(&path, &cfg.geometry)
 }
 
 pub fn run(a: FitamArgs) -> Result<()> {
     check_args(&a)?;
     let cfg = protocol_config(&a.graph)?;
     let rows = rows(&a.rows)?;
+    let learned = match rows.contains(&Row::LearnedFarField) {
+        true => Some(learned_graph(&a, &cfg)?),
+        false => None,
+    };
     let shard = a.shard.unwrap_or(Shard::ALL);
-    let results = FitamResults::start(protocol(&a, &rows)?, shard);
+    let results = FitamResults::start(protocol(&a, &rows, learned.as_ref())?, shard);
     // World k (0-based) is shard (k mod N) + 1's: whole worlds, as each
     // costs a generation and a gigabyte.
     let maps: Vec<u64> = (0..a.maps)
@@ -406,12 +474,23 @@ pub fn run(a: FitamArgs) -> Result<()> {
     };
     std::thread::scope(|s| {
         for _ in 0..jobs {
-            s.spawn(|| loop {
+            s.spawn(|| {
+                let mut rig: Option<LearnedRig> = None;
+                loop {
                 let k = next.fetch_add(1, Ordering::Relaxed);
                 if k >= maps.len() || stop.load(Ordering::Relaxed) {
                     return;
                 }
                 let seed = maps[k];
+                // One model session per thread, loaded with its first world.
+                if rig.is_none() {
+                    if let Some(l) = &learned {
+                        match LearnedRig::new(l, &a.rig) {
+                            Ok(r) => rig = Some(r),
+                            Err(e) => return fail(e),
+                        }
+                    }
+                }
                 let world = random_world(seed, a.size_m).world;
                 let problems =
                     sample_problems(&world, a.problems_per_map, a.min_goal_m, a.edge_margin_m, seed);
@@ -431,7 +510,13 @@ pub fn run(a: FitamArgs) -> Result<()> {
                     let mut mine = Vec::new();
                     for &row in &rows {
                         let t = Instant::now();
-                        let r = sense_plan_act(&world, p, row, &cfg);
+                        let source = rig.as_mut().map(|r| r as &mut dyn FarFieldSource);
+                        let r = match sense_plan_act(&world, p, row, &cfg, source) {
+                            Ok(r) => r,
+                            Err(e) => {
+                                return fail(e.context(format!("world {seed} problem {i} {}", row.name())))
+                            }
+                        };
                         eprintln!(
                             "  world {seed} problem {i} {}: {} cost {:.0} s ({:.2} x oracle), {:.0} m, {} iterations, {:.1} s",
                             row.name(),
@@ -465,6 +550,7 @@ pub fn run(a: FitamArgs) -> Result<()> {
                             return fail(e);
                         }
                     }
+                }
                 }
             });
         }
@@ -626,9 +712,69 @@ mod tests {
         std::fs::remove_dir_all(&dir).ok();
     }
 
+    /// Needs ONNX Runtime (`ORT_DYLIB_PATH`), as the inference tests.
+    #[test]
+    fn the_learned_row_runs_the_graphs_model_on_the_rig_and_hashes_it() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            a: FitamArgs,
+        }
+        let dir =
+            std::env::temp_dir().join(format!("farsight-fitam-learned-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let out = dir.join("learned.json");
+        let args = [
+            "x",
+            "--maps",
+            "1",
+            "--problems-per-map",
+            "1",
+            "--size-m",
+            "300",
+            "--min-goal-m",
+            "150",
+            "--edge-margin-m",
+            "20",
+            "--rows",
+            "learned_far_field",
+            "--rig",
+            "front,rear",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        run(Cli::try_parse_from(args).unwrap().a).unwrap();
+        let f: FitamResults = record::read(&out).unwrap();
+        std::fs::remove_dir_all(&dir).ok();
+        let rows: Vec<&str> = f.trials.iter().map(|t| t.row.as_str()).collect();
+        assert_eq!(rows, ["no_far_field", "learned_far_field"]);
+        assert!(f.trials.iter().all(|t| t.reached), "{:?}", f.trials);
+        let learned = f
+            .protocol
+            .learned
+            .as_ref()
+            .expect("the learned row is recorded");
+        assert_eq!(learned.rig, ["front", "rear"]);
+        assert_eq!(learned.graph.graph, "graphs/sim/fitam.toml");
+        let model = crate::graph::repo_file("deploy/models/sim-fitam/model.onnx").unwrap();
+        let bytes = std::fs::read(model).unwrap();
+        assert_eq!(learned.model.sha256, record::sha256_hex(&bytes));
+        // A rig camera the simulator does not mount is refused by name.
+        let bad =
+            Cli::try_parse_from(
+                args.iter()
+                    .map(|a| if *a == "front,rear" { "front,top" } else { a }),
+            )
+            .unwrap()
+            .a;
+        let e = format!("{:#}", run(bad).unwrap_err());
+        assert!(e.contains("unknown camera \"top\""), "{e}");
+    }
+
     #[test]
     fn rows_are_named_and_checked() {
-        assert_eq!(rows(&[]).unwrap().len(), 3);
+        assert_eq!(rows(&[]).unwrap().len(), 4);
         assert_eq!(
             rows(&["perfect_vision".into()]).unwrap(),
             vec![Row::NoFarField, Row::PerfectVision]

@@ -29,6 +29,7 @@ mod chaos;
 mod dataset;
 mod demo;
 mod demo_sim;
+mod fitam_rig;
 mod foxglove;
 mod graph;
 mod hip_library;

@@ -18,6 +18,11 @@
 //! - [`Row::GroundTruthFarField`]: plus far-field labels made from the true
 //!   world by FITAM's label rule (section IV-B) over all 32 heading bins, a
 //!   full 360 degree ring as the paper's panoramas gave (*GT FF*);
+//! - [`Row::LearnedFarField`]: plus the far field a learned model predicts
+//!   from rendered camera images, through a [`FarFieldSource`] the caller
+//!   gives (`farsight bench fitam` builds it from the shipped graph's
+//!   inference and bin-projection configs on a rig of cameras all round the
+//!   robot, as the paper's panoramas) (*Learned FF*);
 //! - [`Row::PerfectVision`]: no far field, local observations out to 100 m
 //!   instead of 25 m (occlusion kept: local observations are what an
 //!   unobstructed ray reaches) (*Perfect Vision*).
@@ -41,7 +46,7 @@ use crate::world::World;
 use farsight_costmap_fusion::kalman::FarFieldConfig;
 use farsight_costmap_fusion::map::FusionMap;
 use farsight_costmap_fusion::swath::{for_each_swath_cell, PolarGeometry};
-use farsight_interfaces::msg::Stamp;
+use farsight_interfaces::msg::{PolarCell, Stamp};
 use farsight_subgoal_selection::dstar_lite::{astar, CostGrid, DStarLite};
 
 /// Version of this module's rules (the agent's sensing, travel and failure
@@ -49,20 +54,44 @@ use farsight_subgoal_selection::dstar_lite::{astar, CostGrid, DStarLite};
 /// hashed into every `farsight bench fitam` result: change it whenever any
 /// of them changes what a trial measures.
 /// 1: as the module comment says; D* Lite may not cut a blocked cell's corner.
-pub const AGENT_RULES_VERSION: u32 = 1;
+/// 2: the learned row; a far-field source's observation is checked against
+/// the geometry before it is fused (the rows of version 1 are unchanged).
+pub const AGENT_RULES_VERSION: u32 = 2;
+
+/// Where a row's far-field observation comes from: polar cells at a pose,
+/// heading-major in the protocol's [`PolarGeometry`] (heading bin `h`,
+/// radial bin `r` at `h * radial + r`), a NaN cost for "no measurement".
+pub trait FarFieldSource {
+    fn observe(&mut self, world: &World, pose: [f64; 3]) -> anyhow::Result<Vec<PolarCell>>;
+}
+
+/// FITAM's ground-truth labels (section IV-B) from the true world over every
+/// heading bin.
+pub struct GroundTruthFarField<'a> {
+    pub geometry: &'a PolarGeometry,
+    pub rules: &'a LabelRules,
+}
+
+impl FarFieldSource for GroundTruthFarField<'_> {
+    fn observe(&mut self, world: &World, pose: [f64; 3]) -> anyhow::Result<Vec<PolarCell>> {
+        Ok(ground_truth_bins(world, self.geometry, pose, self.rules))
+    }
+}
 
 /// One row of Table I.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Row {
     NoFarField,
     GroundTruthFarField,
+    LearnedFarField,
     PerfectVision,
 }
 
 impl Row {
-    pub const ALL: [Row; 3] = [
+    pub const ALL: [Row; 4] = [
         Row::NoFarField,
         Row::GroundTruthFarField,
+        Row::LearnedFarField,
         Row::PerfectVision,
     ];
 
@@ -71,6 +100,7 @@ impl Row {
         match self {
             Row::NoFarField => "no_far_field",
             Row::GroundTruthFarField => "gt_far_field",
+            Row::LearnedFarField => "learned_far_field",
             Row::PerfectVision => "perfect_vision",
         }
     }
@@ -244,17 +274,35 @@ impl Touched {
     }
 }
 
-/// Runs one row of the protocol on one problem.
+/// Runs one row of the protocol on one problem. [`Row::LearnedFarField`]
+/// observes through `learned`, and is refused without one; the other rows
+/// ignore it. Fails only when the far-field source does, or its
+/// observation does not fit the geometry.
 pub fn sense_plan_act(
     world: &World,
     problem: &Problem,
     row: Row,
     cfg: &ProtocolConfig,
-) -> TrialResult {
+    learned: Option<&mut dyn FarFieldSource>,
+) -> anyhow::Result<TrialResult> {
     let (w, h, res) = (world.width, world.height, world.resolution_m);
     // The map's window is the whole world: its cell (gx, gy) is the world's.
     let mut map = FusionMap::new(w, h, res, cfg.far_field);
-    let use_far_field = row == Row::GroundTruthFarField;
+    let mut ground_truth = GroundTruthFarField {
+        geometry: &cfg.geometry,
+        rules: &cfg.label_rules,
+    };
+    let mut far_field: Option<&mut dyn FarFieldSource> = match row {
+        Row::GroundTruthFarField => Some(&mut ground_truth),
+        Row::LearnedFarField => Some(learned.ok_or_else(|| {
+            anyhow::anyhow!(
+                "the learned_far_field row needs a far-field source (a model and a camera rig)"
+            )
+        })?),
+        Row::NoFarField | Row::PerfectVision => None,
+    };
+    let use_far_field = far_field.is_some();
+    let want_cells = cfg.geometry.heading_bins * cfg.geometry.radial_bins();
     let sensor = match row {
         Row::PerfectVision => NearFieldSensor {
             range_m: cfg.perfect_vision_range_m,
@@ -287,9 +335,16 @@ pub fn sense_plan_act(
         // Sense: the far field first, so that this iteration's local
         // observations are not overwritten (they never are: fixed cells
         // skip far-field updates), then the local fix.
-        if use_far_field {
-            let bins =
-                ground_truth_bins(world, &cfg.geometry, [x_m, y_m, yaw_rad], &cfg.label_rules);
+        if let Some(source) = far_field.as_deref_mut() {
+            let bins = source.observe(world, [x_m, y_m, yaw_rad])?;
+            anyhow::ensure!(
+                bins.len() == want_cells,
+                "{} far field: {} polar cells, the geometry's {} heading x {} radial bins need {want_cells}",
+                row.name(),
+                bins.len(),
+                cfg.geometry.heading_bins,
+                cfg.geometry.radial_bins()
+            );
             map.observe_far_field(&cfg.geometry, &bins, x_m, y_m, yaw_rad);
             for_each_swath_cell(&cfg.geometry, x_m, y_m, yaw_rad, res, |gx, gy, _, _| {
                 touched.add(gx, gy)
@@ -370,7 +425,7 @@ pub fn sense_plan_act(
             break;
         }
     }
-    result
+    Ok(result)
 }
 
 /// A mean with its 95% half-width from the standard error of the mean.
@@ -464,8 +519,8 @@ mod tests {
     fn the_far_field_finds_the_road_no_far_field_cannot() {
         let (w, p) = road_beside_forest();
         let cfg = ProtocolConfig::default();
-        let noff = sense_plan_act(&w, &p, Row::NoFarField, &cfg);
-        let gt = sense_plan_act(&w, &p, Row::GroundTruthFarField, &cfg);
+        let noff = sense_plan_act(&w, &p, Row::NoFarField, &cfg, None).unwrap();
+        let gt = sense_plan_act(&w, &p, Row::GroundTruthFarField, &cfg, None).unwrap();
         assert!(noff.reached && gt.reached, "{noff:?} {gt:?}");
         // Straight through 320 m of forest costs ~700 s; the road way is
         // ~460 m at 0.2 s/m plus a little forest.
@@ -485,6 +540,71 @@ mod tests {
         let stats = paired_against(&[Some(noff.cost_s)], &[Some(gt.cost_s)]);
         assert_eq!(stats.trials_improved_pct.unwrap().mean, 100.0);
         assert!(stats.avg_diff_pct.unwrap().mean > 40.0);
+    }
+
+    /// A far-field source that counts its calls and answers with what it
+    /// is given (`None`: ground truth).
+    struct Scripted {
+        calls: usize,
+        answer: Option<Vec<PolarCell>>,
+    }
+
+    impl FarFieldSource for Scripted {
+        fn observe(&mut self, world: &World, pose: [f64; 3]) -> anyhow::Result<Vec<PolarCell>> {
+            self.calls += 1;
+            let cfg = ProtocolConfig::default();
+            Ok(match &self.answer {
+                Some(a) => a.clone(),
+                None => ground_truth_bins(world, &cfg.geometry, pose, &cfg.label_rules),
+            })
+        }
+    }
+
+    #[test]
+    fn the_learned_row_fuses_its_sources_observation_each_iteration() {
+        let (w, p) = road_beside_forest();
+        let cfg = ProtocolConfig::default();
+        let gt = sense_plan_act(&w, &p, Row::GroundTruthFarField, &cfg, None).unwrap();
+        // A source that sees the truth drives the ground-truth row's track.
+        let mut truth = Scripted {
+            calls: 0,
+            answer: None,
+        };
+        let learned = sense_plan_act(&w, &p, Row::LearnedFarField, &cfg, Some(&mut truth)).unwrap();
+        assert_eq!(learned, gt);
+        assert_eq!(truth.calls, gt.iterations, "one observation per iteration");
+        // One that never measures anything is No FF.
+        let noff = sense_plan_act(&w, &p, Row::NoFarField, &cfg, None).unwrap();
+        let mut blind = Scripted {
+            calls: 0,
+            answer: Some(vec![PolarCell::NO_MEASUREMENT; 32 * 3]),
+        };
+        let r = sense_plan_act(&w, &p, Row::LearnedFarField, &cfg, Some(&mut blind)).unwrap();
+        assert_eq!(r.cost_s, noff.cost_s);
+        // The other rows never ask the source.
+        let mut unused = Scripted {
+            calls: 0,
+            answer: None,
+        };
+        sense_plan_act(&w, &p, Row::NoFarField, &cfg, Some(&mut unused)).unwrap();
+        assert_eq!(unused.calls, 0);
+    }
+
+    #[test]
+    fn a_learned_row_without_a_source_or_with_a_misshapen_one_is_refused() {
+        let (w, p) = road_beside_forest();
+        let cfg = ProtocolConfig::default();
+        let e = sense_plan_act(&w, &p, Row::LearnedFarField, &cfg, None).unwrap_err();
+        assert!(e.to_string().contains("needs a far-field source"), "{e}");
+        let mut short = Scripted {
+            calls: 0,
+            answer: Some(vec![PolarCell::NO_MEASUREMENT; 30]),
+        };
+        let e = sense_plan_act(&w, &p, Row::LearnedFarField, &cfg, Some(&mut short)).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "learned_far_field far field: 30 polar cells, the geometry's 32 heading x 3 radial bins need 96"
+        );
     }
 
     #[test]
@@ -507,7 +627,7 @@ mod tests {
             oracle_cost_s,
         };
         let cfg = ProtocolConfig::default();
-        let r = sense_plan_act(&w, &p, Row::NoFarField, &cfg);
+        let r = sense_plan_act(&w, &p, Row::NoFarField, &cfg, None).unwrap();
         assert!(r.reached, "{r:?}");
         assert!(r.track.iter().all(|&(x, y)| !w.lethal(x as i64, y as i64)));
         assert!(
@@ -532,7 +652,7 @@ mod tests {
             goal: (110, 30),
             oracle_cost_s: f64::NAN,
         };
-        let r = sense_plan_act(&w, &p, Row::NoFarField, &ProtocolConfig::default());
+        let r = sense_plan_act(&w, &p, Row::NoFarField, &ProtocolConfig::default(), None).unwrap();
         assert!(!r.reached);
         let cfg = ProtocolConfig {
             max_iterations: 2,
@@ -544,7 +664,7 @@ mod tests {
             goal: (190, 30),
             oracle_cost_s: 90.0,
         };
-        let r = sense_plan_act(&open, &far, Row::NoFarField, &cfg);
+        let r = sense_plan_act(&open, &far, Row::NoFarField, &cfg, None).unwrap();
         assert!(
             !r.reached && r.iterations == 2 && r.distance_m <= 40.0 + 1e-9,
             "{r:?}"
@@ -555,8 +675,8 @@ mod tests {
     fn perfect_vision_sees_the_road_from_further_away() {
         let (w, p) = road_beside_forest();
         let cfg = ProtocolConfig::default();
-        let noff = sense_plan_act(&w, &p, Row::NoFarField, &cfg);
-        let pv = sense_plan_act(&w, &p, Row::PerfectVision, &cfg);
+        let noff = sense_plan_act(&w, &p, Row::NoFarField, &cfg, None).unwrap();
+        let pv = sense_plan_act(&w, &p, Row::PerfectVision, &cfg, None).unwrap();
         assert!(
             pv.reached && pv.cost_s < noff.cost_s,
             "{} vs {}",
