@@ -31,6 +31,11 @@
 //!   a dead end is thus carried out of it, as LRN's operators did, where
 //!   the carry-back rule left it inside.
 //!
+//! - [`InterventionRule::EndTrial`] (HIP section V: success is "reaching
+//!   the goal unharmed"): the first contact with anything lethal, or being
+//!   stuck as the carry-back rule judges it (HIP's "stuck" and "trapped"
+//!   collisions), ends the trial as [`Outcome::Harmed`].
+//!
 //! Carried stretches are not driven: they add neither distance, time nor
 //! cost.
 
@@ -44,7 +49,8 @@ use crate::render::PALETTE;
 /// when that is less, in 10 s; carried 3 m back (commit 60a2c7e).
 /// 3: the rule is chosen per run ([`InterventionRule`], recorded beside
 /// this version); carry-back unchanged; LRN section IV's operator added.
-pub const INTERVENTION_RULE_VERSION: u32 = 3;
+/// 4: HIP's end-trial rule added; the other rules unchanged.
+pub const INTERVENTION_RULE_VERSION: u32 = 4;
 use crate::robot::{Robot, RobotLimits};
 use crate::scenario::Scenario;
 
@@ -72,6 +78,8 @@ pub enum InterventionRule {
     CarryBack { backup_m: f64 },
     /// LRN section IV's operator: face the goal, then walk it.
     Operator(OperatorRule),
+    /// HIP section V: a contact or being stuck ends the trial, harmed.
+    EndTrial,
 }
 
 impl Default for InterventionRule {
@@ -87,8 +95,9 @@ impl InterventionRule {
         match name {
             "carry-back" => Ok(Self::default()),
             "operator" => Ok(Self::Operator(OperatorRule::default())),
+            "end-trial" => Ok(Self::EndTrial),
             _ => Err(format!(
-                "intervention rule {name:?}: expected \"carry-back\" (stuck in place: 3 m back along the track) or \"operator\" (LRN section IV: face the goal, then walk it)"
+                "intervention rule {name:?}: expected \"carry-back\" (stuck in place: 3 m back along the track), \"operator\" (LRN section IV: face the goal, then walk it) or \"end-trial\" (HIP section V: a contact or being stuck fails the trial)"
             )),
         }
     }
@@ -97,6 +106,7 @@ impl InterventionRule {
         match self {
             Self::CarryBack { .. } => "carry-back",
             Self::Operator(_) => "operator",
+            Self::EndTrial => "end-trial",
         }
     }
 }
@@ -143,12 +153,33 @@ impl Default for EpisodeConfig {
     }
 }
 
+impl EpisodeConfig {
+    /// The defaults with a time limit, an intervention rule and the
+    /// robot's disc footprint: what a simulated run and the benchmark's
+    /// expert drive under.
+    pub fn with_rules(max_time_s: f64, intervention: InterventionRule, radius_m: f64) -> Self {
+        let defaults = Self::default();
+        Self {
+            max_time_s,
+            intervention,
+            limits: RobotLimits {
+                radius_m,
+                ..defaults.limits
+            },
+            ..defaults
+        }
+    }
+}
+
 /// How a drive ended (or that it has not).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Outcome {
     Driving,
     Reached,
     TimedOut,
+    /// Touched something lethal or got stuck, under
+    /// [`InterventionRule::EndTrial`].
+    Harmed,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -266,12 +297,23 @@ impl Episode {
             if moved < needed {
                 self.interventions += 1;
                 self.intervention_points.push(here);
+                if self.config.intervention == InterventionRule::EndTrial {
+                    self.outcome = Outcome::Harmed;
+                    return self.outcome;
+                }
                 self.carry_back();
             }
             self.window_start = (self.time_s, [self.robot.x_m, self.robot.y_m]);
             self.window_reach_m = 0.0;
         }
-        self.outcome = if d <= self.config.goal_radius_m {
+        let harmed =
+            self.config.intervention == InterventionRule::EndTrial && self.robot.collisions > 0;
+        self.outcome = if harmed {
+            if self.intervention_points.is_empty() {
+                self.intervention_points.push(here);
+            }
+            Outcome::Harmed
+        } else if d <= self.config.goal_radius_m {
             Outcome::Reached
         } else if self.time_s >= self.config.max_time_s {
             Outcome::TimedOut
@@ -568,6 +610,35 @@ mod tests {
         assert_eq!(a.0, b.0);
         assert_eq!(a.1, b.1);
         assert!(a.0.len() > 20);
+    }
+
+    #[test]
+    fn under_the_end_trial_rule_the_first_contact_or_stall_fails_the_trial() {
+        let rule = InterventionRule::named("end-trial").unwrap();
+        assert_eq!(rule.name(), "end-trial");
+        let cfg = EpisodeConfig {
+            max_time_s: 45.0,
+            intervention: rule,
+            ..Default::default()
+        };
+        // Straight into the bug trap's wall: harmed on contact, about 34 m on.
+        let mut e = Episode::new(scenario("bug-trap", 1).unwrap(), cfg);
+        while e.step((2.0, 0.0), 0.1) == Outcome::Driving {}
+        let sum = e.summary();
+        assert_eq!(sum.outcome, Outcome::Harmed, "{sum:?}");
+        assert!(sum.time_s < 25.0 && sum.collisions == 1, "{sum:?}");
+        assert_eq!(e.intervention_points.len(), 1, "marked where it hit");
+        // Standing still touches nothing but is stuck: harmed at 10 s.
+        let mut e = Episode::new(scenario("bug-trap", 1).unwrap(), cfg);
+        while e.step((0.0, 0.0), 0.1) == Outcome::Driving {}
+        let sum = e.summary();
+        assert_eq!(
+            (sum.outcome, sum.collisions, sum.interventions),
+            (Outcome::Harmed, 0, 1)
+        );
+        assert!((sum.time_s - 10.0).abs() < 0.11, "{sum:?}");
+        // Once ended, further commands change nothing.
+        assert_eq!(e.step((2.0, 0.0), 0.1), Outcome::Harmed);
     }
 
     #[test]

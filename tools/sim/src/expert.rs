@@ -247,6 +247,33 @@ impl TimeLimitRule {
     }
 }
 
+/// The expert driven through a whole episode under `config` (10 Hz, its
+/// A* path on the true map, replanned as it drives): HIP section V's
+/// privileged planner, whose success normalises the methods' (the paper's
+/// `move_base` with a global obstacle map). `None` when no path reaches
+/// the goal.
+pub fn expert_drive(
+    scenario: &crate::scenario::Scenario,
+    config: crate::episode::EpisodeConfig,
+) -> Option<crate::episode::Summary> {
+    use crate::episode::{Episode, Outcome};
+    let dt_s = 0.1;
+    let start = [scenario.start[0], scenario.start[1]];
+    let mut expert = Expert::new(
+        &scenario.world,
+        start,
+        scenario.goal,
+        config.limits.max_linear_mps,
+    )?;
+    let mut e = Episode::new(scenario.clone(), config);
+    loop {
+        let command = expert.command(&e.scenario.world, e.robot.pose(), dt_s);
+        if e.step(command, dt_s) != Outcome::Driving {
+            return Some(e.summary());
+        }
+    }
+}
+
 impl Expert {
     /// `None` when no path reaches the goal.
     pub fn new(
@@ -322,6 +349,31 @@ impl Expert {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_expert_drives_the_hip_spawns_to_their_goals() {
+        use crate::episode::{EpisodeConfig, InterventionRule, Outcome};
+        let cfg = EpisodeConfig {
+            max_time_s: 120.0,
+            intervention: InterventionRule::EndTrial,
+            ..Default::default()
+        };
+        let reached = (1..=10)
+            .filter(|&seed| {
+                let s = crate::scenario::scenario("hip-in-distribution", seed).unwrap();
+                expert_drive(&s, cfg).unwrap().outcome == Outcome::Reached
+            })
+            .count();
+        assert!(reached >= 8, "{reached} of 10");
+        // A goal sealed off has no expert.
+        let mut sealed = crate::scenario::scenario("bug-trap", 1).unwrap();
+        for y in 0..100 {
+            sealed
+                .world
+                .set_obstacle(70, y, crate::world::Obstacle::Wall);
+        }
+        assert!(expert_drive(&sealed, cfg).is_none());
+    }
     use crate::world::Cover;
 
     /// A road 12 x 7 m with a column of bushes across it at x = 5; start

@@ -43,6 +43,27 @@ enum Command {
     },
     /// Join the stage graph as the robot and drive the scenario.
     Run(RunArgs),
+    /// HIP's trajectory library (section III) from its data collection:
+    /// sticky random actions on a scenario's world, respawned after every
+    /// collision, the sequences that ended in one removed, the futures
+    /// clustered by k-means. Written as subgoal-selection's `hip_library`.
+    HipLibrary {
+        #[arg(long, default_value = "hip-in-distribution")]
+        scenario: String,
+        /// Simulated seconds of driving.
+        #[arg(long, default_value_t = 1800.0)]
+        seconds: f64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Library size K (the paper: 200).
+        #[arg(long, default_value_t = 200)]
+        k: usize,
+        /// Points per trajectory H (the paper: 10, at 5 Hz).
+        #[arg(long, default_value_t = 10)]
+        horizon: usize,
+        #[arg(long, default_value = "hip-library.toml")]
+        out: PathBuf,
+    },
     /// Renderer frames per second at 640x360, per scenario.
     Bench {
         #[arg(long, default_value_t = 60)]
@@ -148,6 +169,54 @@ fn main() -> Result<()> {
             println!(
                 "wrote {name}-{{rgb,classes,depth,map}}.png to {}",
                 out.display()
+            );
+        }
+        Command::HipLibrary {
+            scenario: name,
+            seconds,
+            seed,
+            k,
+            horizon,
+            out,
+        } => {
+            use farsight_sim::sticky::{sticky_random_drive, trajectory_library, StickyConfig};
+            anyhow::ensure!(
+                seconds.is_finite() && (1.0..=1e6).contains(&seconds),
+                "--seconds {seconds}: expected 1 to 1,000,000 simulated seconds"
+            );
+            anyhow::ensure!(
+                (1..=10_000).contains(&k) && (1..=100).contains(&horizon),
+                "--k {k} / --horizon {horizon}: expected 1-10000 trajectories of 1-100 points"
+            );
+            let s = scenario(&name, seed)?;
+            let cfg = StickyConfig {
+                duration_s: seconds,
+                ..Default::default()
+            };
+            eprintln!("driving {seconds:.0} s of sticky random actions on {name} ...");
+            let drive = sticky_random_drive(&s.world, &cfg, seed);
+            let poses: usize = drive.segments.iter().map(|s| s.len()).sum();
+            let mut lib = trajectory_library(&drive, k, horizon, cfg.record_every_s, seed);
+            // Millimetres are plenty for a planner on 1 m cells.
+            for p in lib.trajectories.iter_mut().flatten().flatten() {
+                *p = (*p * 1000.0).round() / 1000.0;
+            }
+            anyhow::ensure!(
+                lib.trajectories.len() == k,
+                "only {} futures of {horizon} points were recorded, fewer than --k {k}: drive longer",
+                lib.trajectories.len()
+            );
+            let header = format!(
+                "# HIP trajectory library: farsight-sim hip-library --scenario {name} --seconds {seconds} --seed {seed} --k {k} --horizon {horizon}\n# {poses} collision-free poses at 5 Hz in {} sequences, {} collisions removed.\n",
+                drive.segments.len(),
+                drive.collisions
+            );
+            let text = header + &toml::to_string(&lib)?;
+            std::fs::write(&out, text).with_context(|| format!("writing {}", out.display()))?;
+            println!(
+                "wrote {} ({k} trajectories of {horizon} points from {poses} poses, {} collisions)",
+                out.display(),
+                drive.collisions
             );
         }
         Command::Bench { frames, threads } => {

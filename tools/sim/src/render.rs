@@ -44,6 +44,8 @@ pub const PALETTE: [[u8; 3]; class::COUNT] = [
     [160, 85, 75],   // building
     [55, 70, 35],    // tree
     [205, 205, 200], // wall
+    [150, 165, 70],  // tall grass
+    [70, 110, 50],   // shrub
 ];
 
 /// Per-camera tables: each column's azimuth, and per pixel the tangent of

@@ -110,6 +110,11 @@ pub struct RunArgs {
     /// The robot's disc footprint (m); a Jackal is about 0.25.
     #[arg(long, default_value_t = crate::robot::RobotLimits::default().radius_m)]
     pub robot_radius_m: f64,
+    /// What the near-field sensor reports: `true-cost`, or
+    /// `height-threshold` (HIP's geometric costmap: lethal above 0.5 m,
+    /// free below, so tall grass looks lethal and shrubs and stones free).
+    #[arg(long, default_value = "true-cost", value_parser = parse_near_field)]
+    pub near_field: crate::sensor::CostModel,
     #[arg(long, default_value = "out/sim")]
     pub out: PathBuf,
     /// Who drives: the graph's commands, or the expert (A* on the true map).
@@ -270,9 +275,19 @@ pub fn map_pixel(world: &crate::world::World, x_m: f64, y_m: f64) -> Option<(usi
     Some((cx as usize * k, (world.height - 1 - cy as usize) * k))
 }
 
+/// `--near-field`'s values, named in the error.
+pub fn parse_near_field(name: &str) -> Result<crate::sensor::CostModel, String> {
+    crate::sensor::CostModel::named(name).ok_or_else(|| {
+        format!("near-field sensor {name:?}: expected \"true-cost\" or \"height-threshold\"")
+    })
+}
+
 /// Classes a ground robot may drive on (the oracle's navigability).
 pub fn navigable_class(c: u8) -> bool {
-    matches!(c, class::ROAD | class::TRAIL | class::GRASS | class::FIELD)
+    matches!(
+        c,
+        class::ROAD | class::TRAIL | class::GRASS | class::FIELD | class::TALL_GRASS
+    )
 }
 
 impl RunArgs {
@@ -292,6 +307,7 @@ impl RunArgs {
             far_field_oracle: self.far_field_oracle,
             base_max_ttl_s: self.base_max_ttl_s,
             intervention: self.intervention_rule,
+            near_field: self.near_field,
             robot_radius_m: self.robot_radius_m,
         }
     }

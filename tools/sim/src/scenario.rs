@@ -10,6 +10,8 @@
 //! | `povnav-env-1`..`5` | POVNav section 5.2 | the same fields, start and goal drawn per seed on either side (the paper's 20 random start/goal pairs per environment) |
 //! | `random` | FITAM | land-cover noise: fields, grass, forest with trees, water, rocks, roads; rolling hills; 400 m, goal about 340 m away |
 //! | `random-long` | issue 20 | the same on 1.5 km, goal about 1.84 km away (long range) |
+//! | `hip-in-distribution` | HIP section V | a 50 m geofence of trees, shrubs, stones and patches of tall grass; a spawn and a goal 10-25 m apart per seed |
+//! | `hip-novel-wall` | HIP section V | another such geofence with walls, an obstacle no HIP training world has (out of distribution) |
 
 use crate::rng::SplitMix64;
 use crate::world::{Cover, Obstacle, World};
@@ -32,7 +34,7 @@ pub struct Scenario {
 
 /// Every named scenario (`random` and `random-long` take their sizes from
 /// [`random_world`]).
-pub const NAMES: [&str; 16] = [
+pub const NAMES: [&str; 18] = [
     "bug-trap",
     "bridge",
     "bush-wall",
@@ -49,6 +51,8 @@ pub const NAMES: [&str; 16] = [
     "povnav-env-5",
     "random",
     "random-long",
+    "hip-in-distribution",
+    "hip-novel-wall",
 ];
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -184,9 +188,102 @@ pub fn scenario(name: &str, seed: u64) -> Result<Scenario, UnknownScenario> {
             name: "random-long".into(),
             ..random_world(seed, 1500)
         },
+        "hip-in-distribution" => hip_spawn(name, hip_world(1, false), seed),
+        "hip-novel-wall" => hip_spawn(name, hip_world(2, true), seed),
         _ => return Err(UnknownScenario(name.into())),
     };
     Ok(s)
+}
+
+/// Side of a HIP geofence (m).
+pub const HIP_WORLD_M: usize = 50;
+
+/// HIP's evaluation world (section III: "an obstacle-rich, enclosed
+/// geofence where dense rigid trees, bushes, and traversable tall grass are
+/// scattered throughout"): grass with patches of tall grass, trees, shrubs
+/// and stones scattered over it, and with `novel_walls` six wall segments
+/// 5-10 m long, the paper's out-of-distribution "novel obstacles". The
+/// world is fixed by `world_seed`; the trial's seed only draws the spawn.
+pub fn hip_world(world_seed: u64, novel_walls: bool) -> World {
+    let size = HIP_WORLD_M;
+    let mut rng = SplitMix64::new(world_seed ^ 0x41B);
+    let mut w = World::new(size, size, Cover::Grass);
+    for y in 0..size as i64 {
+        for x in 0..size as i64 {
+            let grass = value_noise(world_seed ^ 0x7A11, x as f64, y as f64, 7.0);
+            let u = rng.unit();
+            // 3% trees, 1.5% shrubs, 1% stones. A first layout with 3%
+            // shrubs and 2% stones left a height-threshold costmap at 2-9%
+            // success over 300 spawns, a yardstick with no room below.
+            let o = if u < 0.03 {
+                Obstacle::Tree
+            } else if u < 0.045 {
+                Obstacle::Shrub
+            } else if u < 0.055 {
+                Obstacle::Stone
+            } else if grass > 0.62 {
+                Obstacle::TallGrass
+            } else {
+                Obstacle::None
+            };
+            w.set_obstacle(x, y, o);
+        }
+    }
+    if novel_walls {
+        for _ in 0..6 {
+            let (x, y) = (rng.range(5.0, 45.0), rng.range(5.0, 45.0));
+            let len = rng.range(5.0, 10.0);
+            let a = rng.range(0.0, std::f64::consts::PI);
+            let to = (x + len * a.cos(), y + len * a.sin());
+            w.line_obstacle(
+                (x.round() as i64, y.round() as i64),
+                (to.0.round() as i64, to.1.round() as i64),
+                Obstacle::Wall,
+            );
+        }
+    }
+    w
+}
+
+/// A spawn on a HIP world for trial `seed` (HIP section V: "randomly
+/// spawned 300 times in the geofence with a goal at least 10 m away"):
+/// start and goal where the robot's disc fits, 10-25 m apart and 3 m from
+/// the fence, with a way between them for the robot (the expert's success
+/// is the yardstick, so spawns it cannot solve are drawn again); facing a
+/// random direction.
+fn hip_spawn(name: &str, world: World, seed: u64) -> Scenario {
+    use crate::robot::{Robot, RobotLimits};
+    let radius_m = RobotLimits::default().radius_m;
+    let mut rng = SplitMix64::new(seed ^ 0x5A3);
+    let lo = 3.0;
+    let hi = HIP_WORLD_M as f64 - 4.0;
+    let draw = |rng: &mut SplitMix64| loop {
+        let p = [rng.range(lo, hi), rng.range(lo, hi)];
+        if Robot::footprint_free(&world, p[0], p[1], radius_m) {
+            return p;
+        }
+    };
+    // The worlds are fixed and about three quarters free: a test draws
+    // the spawns of seeds 1-300 on both, so the bound never binds.
+    for _ in 0..100_000 {
+        let start = draw(&mut rng);
+        let goal = draw(&mut rng);
+        let d = (goal[0] - start[0]).hypot(goal[1] - start[1]);
+        if !(10.0..=25.0).contains(&d) {
+            continue;
+        }
+        if crate::expert::shortest_path_m(&world, start, goal, radius_m, 0.5).is_none() {
+            continue;
+        }
+        let yaw = rng.range(-std::f64::consts::PI, std::f64::consts::PI);
+        return Scenario {
+            name: name.into(),
+            world,
+            start: [start[0], start[1], yaw],
+            goal,
+        };
+    }
+    unreachable!("no HIP spawn in 100,000 draws on a fixed, mostly free world")
 }
 
 fn clear_around(w: &mut World, c: (i64, i64), r: i64) {
@@ -310,6 +407,51 @@ mod tests {
             assert_eq!(s.name, "random-long");
             let d = (s.goal[0] - s.start[0]).hypot(s.goal[1] - s.start[1]);
             assert!((1000.0..=2000.0).contains(&d), "seed {seed}: {d} m");
+        }
+    }
+
+    #[test]
+    fn hip_worlds_hold_the_papers_obstacles_and_spawns_10_m_or_more_apart() {
+        let count = |w: &World, o: Obstacle| {
+            (0..HIP_WORLD_M as i64)
+                .flat_map(|x| (0..HIP_WORLD_M as i64).map(move |y| (x, y)))
+                .filter(|&(x, y)| w.obstacle(x, y) == o)
+                .count()
+        };
+        let cells = HIP_WORLD_M * HIP_WORLD_M;
+        for (name, walls) in [("hip-in-distribution", false), ("hip-novel-wall", true)] {
+            let s = scenario(name, 1).unwrap();
+            for o in [
+                Obstacle::Tree,
+                Obstacle::Shrub,
+                Obstacle::Stone,
+                Obstacle::TallGrass,
+            ] {
+                let n = count(&s.world, o);
+                assert!(n > cells / 200, "{name}: {n} cells of {o:?}");
+            }
+            assert_eq!(count(&s.world, Obstacle::Wall) > 0, walls, "{name}");
+            // The world is fixed; the seed draws only the spawn.
+            let other = scenario(name, 2).unwrap();
+            assert_eq!(
+                count(&other.world, Obstacle::Shrub),
+                count(&s.world, Obstacle::Shrub)
+            );
+            assert_ne!(other.start, s.start);
+        }
+        let a = scenario("hip-in-distribution", 1).unwrap().world;
+        let b = scenario("hip-novel-wall", 1).unwrap().world;
+        assert_ne!(
+            count(&a, Obstacle::Tree),
+            count(&b, Obstacle::Tree),
+            "two layouts"
+        );
+        for name in ["hip-in-distribution", "hip-novel-wall"] {
+            for seed in 1..=300 {
+                let s = scenario(name, seed).unwrap();
+                let d = (s.goal[0] - s.start[0]).hypot(s.goal[1] - s.start[1]);
+                assert!((10.0..=25.0).contains(&d), "{name} seed {seed}: {d} m");
+            }
         }
     }
 

@@ -4,9 +4,75 @@
 //! true cost, and a ray stops two cells past the first thing taller than the
 //! sensor (trees, walls, bushes, rocks, buildings), so what hides behind them
 //! stays unknown.
+//!
+//! What an observed cell reports is the sensor's [`CostModel`]: its true cost
+//! (the default, an oracle of terrain), or HIP's geometric costmap (section
+//! III: a LiDAR height threshold), which errs as the paper's did: tall grass
+//! looks lethal, a shrub or a stone under the threshold looks free, water
+//! looks like flat ground.
 
 use crate::world::World;
 use farsight_interfaces::msg::{CostCell, CostmapHeader, CostmapLayer, Stamp};
+
+/// What an observed cell's cost is.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum CostModel {
+    /// The cell's true traversal cost.
+    #[default]
+    TrueCost,
+    /// Lethal where whatever stands on the cell is taller than
+    /// `threshold_m` above the ground, `free_cost_s_per_m` elsewhere.
+    HeightThreshold {
+        threshold_m: f32,
+        free_cost_s_per_m: f32,
+    },
+}
+
+impl CostModel {
+    /// HIP's geometric costmap: a 0.5 m threshold (above the shrubs and
+    /// stones, below the tall grass), grass's cost where free.
+    pub const HEIGHT_THRESHOLD: CostModel = CostModel::HeightThreshold {
+        threshold_m: 0.5,
+        free_cost_s_per_m: 0.5,
+    };
+
+    /// `true-cost` or `height-threshold` (the `--near-field` flag's values).
+    pub fn named(name: &str) -> Option<Self> {
+        match name {
+            "true-cost" => Some(CostModel::TrueCost),
+            "height-threshold" => Some(CostModel::HEIGHT_THRESHOLD),
+            _ => None,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            CostModel::TrueCost => "true-cost",
+            CostModel::HeightThreshold { .. } => "height-threshold",
+        }
+    }
+
+    /// The cost this model reports for cell (x, y) of `world`.
+    pub fn cost_s_per_m(self, world: &World, x: i64, y: i64) -> f32 {
+        match self {
+            CostModel::TrueCost => world.cost_s_per_m(x, y),
+            CostModel::HeightThreshold {
+                threshold_m,
+                free_cost_s_per_m,
+            } => {
+                if !world.contains(x, y) {
+                    return f32::INFINITY;
+                }
+                let look = world.look(x, y);
+                if look.top_m - look.ground_m > threshold_m {
+                    f32::INFINITY
+                } else {
+                    free_cost_s_per_m
+                }
+            }
+        }
+    }
+}
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NearFieldSensor {
@@ -15,6 +81,7 @@ pub struct NearFieldSensor {
     pub height_m: f64,
     /// Cells a ray goes on past its first occluder.
     pub past_occluder_cells: u32,
+    pub cost_model: CostModel,
 }
 
 impl Default for NearFieldSensor {
@@ -23,6 +90,7 @@ impl Default for NearFieldSensor {
             range_m: 25.0,
             height_m: 0.9,
             past_occluder_cells: 2,
+            cost_model: CostModel::TrueCost,
         }
     }
 }
@@ -52,7 +120,7 @@ impl NearFieldSensor {
             let (j, i) = (gx - (cx - half), (cy + half) - gy);
             if (0..side as i64).contains(&j) && (0..side as i64).contains(&i) {
                 cells[i as usize * side + j as usize] = CostCell {
-                    cost_s_per_m: world.cost_s_per_m(gx, gy),
+                    cost_s_per_m: self.cost_model.cost_s_per_m(world, gx, gy),
                     variance: 0.0,
                 };
             }
@@ -148,5 +216,40 @@ mod tests {
             "28 m away: beyond range"
         );
         assert_eq!(at(50.0, 50.0).variance, 0.0);
+    }
+
+    #[test]
+    fn the_height_threshold_errs_as_hips_geometric_costmap() {
+        let mut world = World::new(60, 60, Cover::Grass);
+        world.set_obstacle(35, 30, Obstacle::TallGrass);
+        world.set_obstacle(30, 35, Obstacle::Shrub);
+        world.set_obstacle(25, 30, Obstacle::Stone);
+        world.set_obstacle(30, 25, Obstacle::Tree);
+        world.set_cover(33, 33, Cover::Water);
+        let truth = NearFieldSensor::default();
+        let geometric = NearFieldSensor {
+            cost_model: CostModel::named("height-threshold").unwrap(),
+            ..truth
+        };
+        let cost = |s: &NearFieldSensor, x: f64, y: f64| {
+            let (h, cells) = s.observe(&world, 30.0, 30.0, Stamp::default());
+            cells[h.cell_index(x, y).unwrap()].cost_s_per_m
+        };
+        // Truth: grass passable, shrub, stone, tree and water lethal.
+        assert_eq!(cost(&truth, 35.0, 30.0), 1.0, "tall grass");
+        for (x, y) in [(30.0, 35.0), (25.0, 30.0), (30.0, 25.0), (33.0, 33.0)] {
+            assert!(cost(&truth, x, y).is_infinite(), "({x}, {y})");
+        }
+        // Geometry: tall grass and the tree lethal; shrub, stone and water free.
+        assert!(
+            cost(&geometric, 35.0, 30.0).is_infinite(),
+            "tall grass looks lethal"
+        );
+        assert!(cost(&geometric, 30.0, 25.0).is_infinite(), "the tree");
+        for (x, y) in [(30.0, 35.0), (25.0, 30.0), (33.0, 33.0)] {
+            assert_eq!(cost(&geometric, x, y), 0.5, "({x}, {y}) looks free");
+        }
+        assert_eq!(CostModel::named("lidar"), None);
+        assert_eq!(CostModel::HEIGHT_THRESHOLD.name(), "height-threshold");
     }
 }

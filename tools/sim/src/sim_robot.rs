@@ -51,6 +51,9 @@ pub struct SimOptions {
     /// The robot's disc footprint (m): 0.4 by default; a Clearpath Jackal
     /// (0.43 m wide, POVNav section 5) is about 0.25.
     pub robot_radius_m: f64,
+    /// What the near-field sensor reports: true costs, or HIP's height
+    /// threshold (`crate::sensor::CostModel`).
+    pub near_field: crate::sensor::CostModel,
 }
 
 impl Default for SimOptions {
@@ -70,6 +73,7 @@ impl Default for SimOptions {
             base_max_ttl_s: 1.0,
             intervention: Default::default(),
             robot_radius_m: crate::robot::RobotLimits::default().radius_m,
+            near_field: crate::sensor::CostModel::TrueCost,
         }
     }
 }
@@ -147,19 +151,17 @@ impl SimRobot {
             "--robot-radius-m {}: expected a radius above 0 m",
             options.robot_radius_m
         );
-        let defaults = EpisodeConfig::default();
-        let config = EpisodeConfig {
-            max_time_s: options.max_time_s,
-            intervention: options.intervention,
-            limits: crate::robot::RobotLimits {
-                radius_m: options.robot_radius_m,
-                ..defaults.limits
-            },
-            ..defaults
-        };
+        let config = EpisodeConfig::with_rules(
+            options.max_time_s,
+            options.intervention,
+            options.robot_radius_m,
+        );
         Ok(Self {
             episode: Episode::new(s, config),
-            sensor: NearFieldSensor::default(),
+            sensor: NearFieldSensor {
+                cost_model: options.near_field,
+                ..NearFieldSensor::default()
+            },
             cameras,
             goal,
             noise: SplitMix64::new(options.seed ^ 0x9053),

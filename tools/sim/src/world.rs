@@ -29,6 +29,13 @@ pub enum Obstacle {
     Bush,
     Rock,
     Wall,
+    /// HIP's traversable tall grass (section III): taller than a height
+    /// threshold, yet the robot drives through it.
+    TallGrass,
+    /// HIP's low untraversable obstacles: a shrub and a stone, under a
+    /// height threshold, yet they stop the robot.
+    Shrub,
+    Stone,
 }
 
 /// Class ids of the rendered class image (and the oracle perception's class
@@ -46,7 +53,9 @@ pub mod class {
     pub const BUILDING: u8 = 9;
     pub const TREE: u8 = 10;
     pub const WALL: u8 = 11;
-    pub const COUNT: usize = 12;
+    pub const TALL_GRASS: u8 = 12;
+    pub const SHRUB: u8 = 13;
+    pub const COUNT: usize = 14;
     /// Names, by id.
     pub const NAMES: [&str; COUNT] = [
         "sky",
@@ -61,6 +70,8 @@ pub mod class {
         "building",
         "tree",
         "wall",
+        "tall_grass",
+        "shrub",
     ];
 }
 
@@ -110,6 +121,9 @@ impl Obstacle {
             Obstacle::Bush => 1.2,
             Obstacle::Rock => 1.0,
             Obstacle::Wall => 2.5,
+            Obstacle::TallGrass => 1.2,
+            Obstacle::Shrub => 0.4,
+            Obstacle::Stone => 0.3,
         }
     }
 
@@ -120,14 +134,19 @@ impl Obstacle {
             Obstacle::Bush => Some(class::BUSHES),
             Obstacle::Rock => Some(class::ROCK),
             Obstacle::Wall => Some(class::WALL),
+            Obstacle::TallGrass => Some(class::TALL_GRASS),
+            Obstacle::Shrub => Some(class::SHRUB),
+            Obstacle::Stone => Some(class::ROCK),
         }
     }
 
-    /// Cost of a cell holding it (bushes can be pushed through, slowly).
+    /// Cost of a cell holding it (bushes can be pushed through, slowly;
+    /// tall grass a little slower than grass).
     pub fn cost_s_per_m(self) -> Option<f32> {
         match self {
             Obstacle::None => None,
             Obstacle::Bush => Some(10.0),
+            Obstacle::TallGrass => Some(1.0),
             _ => Some(f32::INFINITY),
         }
     }
