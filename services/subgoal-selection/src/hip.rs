@@ -12,7 +12,9 @@
 //!   directive terms);
 //! - `C_costmap` is the fused costmap rescaled as the paper
 //!   (`farsight_costmap_fusion::hip::hip_scaled_costmap`); a trajectory
-//!   through a lethal cell is never chosen.
+//!   that takes the robot's disc (`robot_radius_m`) over a lethal cell is
+//!   never chosen ([`disc_touches_lethal`]: costmap_2d's inscribed
+//!   inflation, which the paper's costmap had, done on the exact disc).
 //!
 //! The planner picks the argmin. [`kmeans`] and [`future_trajectories`] build
 //! the library from recorded poses (`farsight hip-library`).
@@ -48,6 +50,9 @@ pub struct HipPlannerConfig {
     /// The goal region: how far toward the goal it starts, and its width.
     pub region_offset_m: f64,
     pub region_width_m: f64,
+    /// The robot's footprint: no trajectory point may bring a disc this
+    /// wide over a lethal cell.
+    pub robot_radius_m: f64,
 }
 
 impl Default for HipPlannerConfig {
@@ -58,6 +63,7 @@ impl Default for HipPlannerConfig {
             delta: 100.0,
             region_offset_m: 3.0,
             region_width_m: 2.0,
+            robot_radius_m: 0.4,
         }
     }
 }
@@ -76,6 +82,11 @@ impl Validate for HipPlannerConfig {
                 "region_width_m",
                 self.region_width_m,
                 Range::between(0.0, 100.0).unit("m"),
+            )
+            .key(
+                "robot_radius_m",
+                self.robot_radius_m,
+                Range::between(0.0, 10.0).unit("m"),
             );
     }
 }
@@ -98,6 +109,47 @@ pub fn directive_cost(end: [f64; 2], goal: [f64; 2], cfg: &HipPlannerConfig) -> 
     } else {
         cfg.delta
     }
+}
+
+/// Whether a disc of `radius_m` centred on world point `w` overlaps a
+/// lethal (infinite) cell of the costmap `costs` described by `h` (cell
+/// `(i, j)` is the square of side `resolution_m` centred on `x_min_m + j
+/// res`, `y_max_m - i res`, as `CostmapHeader::cell_index`). Cells off the
+/// map are not lethal: unknown, as the planner counts them.
+pub fn disc_touches_lethal(
+    h: &farsight_interfaces::msg::CostmapHeader,
+    costs: &[f32],
+    w: [f64; 2],
+    radius_m: f64,
+) -> bool {
+    let res = h.resolution_m as f64;
+    let col = |x: f64| ((x - h.x_min_m) / res + 0.5).floor() as i64;
+    let row = |y: f64| ((h.y_max_m - y) / res + 0.5).floor() as i64;
+    let (j0, j1) = (
+        col(w[0] - radius_m).max(0),
+        col(w[0] + radius_m).min(h.width as i64 - 1),
+    );
+    let (i0, i1) = (
+        row(w[1] + radius_m).max(0),
+        row(w[1] - radius_m).min(h.height as i64 - 1),
+    );
+    for i in i0..=i1 {
+        for j in j0..=j1 {
+            let Some(&c) = costs.get(i as usize * h.width as usize + j as usize) else {
+                continue;
+            };
+            if !c.is_infinite() {
+                continue;
+            }
+            let (xc, yc) = (h.x_min_m + j as f64 * res, h.y_max_m - i as f64 * res);
+            let dx = ((w[0] - xc).abs() - res / 2.0).max(0.0);
+            let dy = ((w[1] - yc).abs() - res / 2.0).max(0.0);
+            if dx * dx + dy * dy < radius_m * radius_m {
+                return true;
+            }
+        }
+    }
+    false
 }
 
 /// The chosen trajectory and its cost terms.
@@ -301,6 +353,42 @@ impl Validate for LibraryFile {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_disc_touches_a_lethal_cell_by_its_square_not_its_centre() {
+        use farsight_interfaces::msg::{CostmapHeader, CostmapLayer, Stamp};
+        // 5 x 5 cells of 1 m, x in [-0.5, 4.5], y in [-0.5, 4.5]; a tree at (2, 2).
+        let h = CostmapHeader {
+            stamp: Stamp::default(),
+            layer: CostmapLayer::FUSED,
+            width: 5,
+            height: 5,
+            resolution_m: 1.0,
+            x_min_m: 0.0,
+            y_max_m: 4.0,
+        };
+        let mut costs = vec![0.5f32; 25];
+        costs[2 * 5 + 2] = f32::INFINITY;
+        let r = 0.4;
+        // The tree's square spans x, y in [1.5, 2.5].
+        assert!(disc_touches_lethal(&h, &costs, [2.0, 2.0], r));
+        assert!(
+            disc_touches_lethal(&h, &costs, [1.2, 2.0], r),
+            "0.3 m from its edge"
+        );
+        assert!(
+            !disc_touches_lethal(&h, &costs, [1.0, 2.0], r),
+            "0.5 m from its edge"
+        );
+        // Diagonally: 0.35 m from the corner on each axis is 0.49 m away.
+        assert!(!disc_touches_lethal(&h, &costs, [1.15, 1.15], r));
+        assert!(
+            disc_touches_lethal(&h, &costs, [1.3, 1.3], r),
+            "0.28 m from the corner"
+        );
+        // Off the map is not lethal; a point far outside touches nothing.
+        assert!(!disc_touches_lethal(&h, &costs, [-30.0, 2.0], r));
+    }
 
     fn line(dx: f64, dy: f64) -> Trajectory {
         Trajectory((1..=10).map(|i| [dx * i as f64, dy * i as f64]).collect())

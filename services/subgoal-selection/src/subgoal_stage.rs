@@ -28,7 +28,7 @@
 //! are judged on the inputs' capture times, and the costmap planners plan
 //! once per costmap, so a run is the same on any machine.
 
-use crate::hip::{choose, LibraryFile, Trajectory};
+use crate::hip::{choose, disc_touches_lethal, LibraryFile, Trajectory};
 use crate::lrn_head::{LrnHead, LrnHeadConfig};
 use crate::planner::WorldPlanner;
 use crate::povnav::{plan, safe_half_widths, Mode, PovnavComponents};
@@ -962,8 +962,12 @@ impl MapPlan {
                 // Off the map is unknown: the scaled value of the unknown cost
                 // would need the map's softmax sum, so count it as free (0)
                 // rather than invent one; the directive still pulls to the goal.
+                let radius_m = config.hip.robot_radius_m;
                 let at = |q: [f64; 2]| {
                     let w = p.to_world_frame(q);
+                    if disc_touches_lethal(h, scaled, w, radius_m) {
+                        return f64::INFINITY;
+                    }
                     match h.cell_index(w[0], w[1]).map(|k| scaled[k]) {
                         Some(v) if !v.is_nan() => v as f64,
                         _ => 0.0,
