@@ -171,6 +171,11 @@ pub struct NavArgs {
     /// (0.43 m wide), POVNav section 5's robot. Recorded in the protocol.
     #[arg(long, default_value_t = farsight_sim::robot::RobotLimits::default().radius_m)]
     pub robot_radius_m: f64,
+    /// What the near-field sensor reports: `true-cost`, or
+    /// `height-threshold` (HIP's geometric costmap, which errs: tall grass
+    /// looks lethal, shrubs and stones free). Recorded in the protocol.
+    #[arg(long, default_value = "true-cost", value_parser = farsight_sim::run::parse_near_field)]
+    pub near_field: farsight_sim::sensor::CostModel,
     /// Write each trial's poses (`<scenario>-<method>-<seed>.csv`, as
     /// `farsight-sim run` writes `poses.csv`) into this folder, and a
     /// top-down picture of each trial that did not reach the goal or needed

@@ -75,7 +75,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// The benchmark's rows: name and graph file (relative to the repository).
-pub const METHODS: [(&str, &str); 15] = [
+pub const METHODS: [(&str, &str); 16] = [
     ("lrn_learned", "graphs/sim/lrn.toml"),
     ("goal_heuristic", "graphs/sim/lrn-goal-heuristic.toml"),
     ("dstar_no_far_field", "graphs/sim/dstar-lite.toml"),
@@ -100,6 +100,7 @@ pub const METHODS: [(&str, &str); 15] = [
     ),
     ("povnav_jackal_pog", "graphs/sim/povnav-jackal-pog.toml"),
     ("vmpp_jackal", "graphs/sim/povnav-jackal-vmpp.toml"),
+    ("hip_costmap", "graphs/sim/hip-costmap.toml"),
 ];
 
 /// The simulator a graph asks for: a camera for each `camera/<name>/...`
@@ -140,6 +141,7 @@ pub fn sim_options(graph: &Graph, scenario: &str, seed: u64, rules: &TrialRules)
             .any(|t| t.starts_with("perception/") && t.ends_with("/navigability")),
         far_field_oracle: external.contains(&"bins/polar"),
         intervention: rules.intervention,
+        near_field: rules.near_field,
         ..defaults
     }
 }
@@ -164,6 +166,7 @@ pub struct TrialRules {
     pub pose_noise_m: f64,
     pub yaw_noise_deg: f64,
     pub robot_radius_m: f64,
+    pub near_field: farsight_sim::sensor::CostModel,
 }
 
 impl TrialRules {
@@ -177,6 +180,7 @@ impl TrialRules {
             pose_noise_m: d.pose_noise_m,
             yaw_noise_deg: d.yaw_noise_deg,
             robot_radius_m: d.robot_radius_m,
+            near_field: d.near_field,
         }
     }
 }
@@ -228,6 +232,19 @@ pub fn stuck(t: &Trial) -> bool {
     t.summary.outcome != Outcome::Reached || t.summary.interventions > 0
 }
 
+/// Whether the expert, driven under the trial's rules, reaches the goal:
+/// HIP section V normalises success by a privileged planner's, so the
+/// expert is driven only under the end-trial rule, where a contact fails
+/// it too (`None` otherwise, and where no path exists).
+pub fn expert_success(scenario: &Scenario, rules: &TrialRules) -> Option<bool> {
+    if rules.intervention != InterventionRule::EndTrial {
+        return None;
+    }
+    let config =
+        EpisodeConfig::with_rules(rules.max_time_s, rules.intervention, rules.robot_radius_m);
+    farsight_sim::expert::expert_drive(scenario, config).map(|s| s.outcome == Outcome::Reached)
+}
+
 /// The protocol of a run of these rows under these arguments.
 fn protocol(a: &NavArgs, rows: &[(String, String, PathBuf)]) -> Result<Protocol> {
     Ok(Protocol {
@@ -240,6 +257,7 @@ fn protocol(a: &NavArgs, rows: &[(String, String, PathBuf)]) -> Result<Protocol>
         pose_noise_m: a.pose_noise_m,
         yaw_noise_deg: a.yaw_noise_deg,
         robot_radius_m: a.robot_radius_m,
+        near_field: a.near_field.name().into(),
         methods: rows
             .iter()
             .map(|(m, shown, path)| MethodGraph::read(m, shown, path))
@@ -358,9 +376,11 @@ pub fn run(a: NavArgs) -> Result<()> {
                     pose_noise_m: a.pose_noise_m,
                     yaw_noise_deg: a.yaw_noise_deg,
                     robot_radius_m: a.robot_radius_m,
+                    near_field: a.near_field,
                 };
                 let t = trial(graph, sc, seed, &rules, csv.as_deref())?;
                 let s = &t.summary;
+                let expert_reached = expert_success(&scenario, &rules);
                 let expert_s = expert.as_ref().map(|e| e.time_s);
                 eprintln!(
                     "  {sc} {m} seed {seed}: {:?} after {:.0} s of {limit:.0} s (expert {}), {:.0} m, {} interventions, {} frames without a command",
@@ -388,6 +408,7 @@ pub fn run(a: NavArgs) -> Result<()> {
                     seed,
                     outcome: match s.outcome {
                         Outcome::Reached => "reached",
+                        Outcome::Harmed => "harmed",
                         _ => "timed_out",
                     }
                     .into(),
@@ -401,6 +422,7 @@ pub fn run(a: NavArgs) -> Result<()> {
                         .hypot(scenario.goal[1] - scenario.start[1]),
                     expert_time_s: expert_s,
                     expert_distance_m: expert.as_ref().map(|e| path_length_m(&e.path)),
+                    expert_reached,
                     shortest_path_m: shortest_path_m(
                         &scenario.world,
                         [scenario.start[0], scenario.start[1]],

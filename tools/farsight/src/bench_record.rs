@@ -110,7 +110,15 @@ pub struct Protocol {
     /// The simulated robot's disc footprint (m).
     #[serde(default = "default_radius")]
     pub robot_radius_m: f64,
+    /// `farsight_sim::sensor::CostModel::name`: `true-cost` or
+    /// `height-threshold` (HIP section III's geometric costmap).
+    #[serde(default = "true_cost")]
+    pub near_field: String,
     pub methods: Vec<MethodGraph>,
+}
+
+fn true_cost() -> String {
+    "true-cost".into()
 }
 
 fn default_radius() -> f64 {
@@ -189,6 +197,7 @@ impl Decided for Protocol {
             ),
             ("protocol.intervention_rule", self.intervention_rule.clone()),
             ("protocol.robot_radius_m", self.robot_radius_m.to_string()),
+            ("protocol.near_field", self.near_field.clone()),
             (
                 "protocol.pose_noise_m / yaw_noise_deg",
                 format!("{} / {}", self.pose_noise_m, self.yaw_noise_deg),
@@ -291,6 +300,10 @@ pub struct TrialRecord {
     /// section 5 judges path length.
     #[serde(default)]
     pub shortest_path_m: Option<f64>,
+    /// Whether the expert, driven under the same rules, reached the goal
+    /// (HIP's privileged planner; only under the end-trial rule).
+    #[serde(default)]
+    pub expert_reached: Option<bool>,
     /// The limit this trial ran under.
     pub time_limit_s: f64,
     pub frames: u64,
@@ -519,6 +532,9 @@ pub fn header(f: &ResultsFile) -> String {
     if p.robot_radius_m != default_radius() {
         cap += &format!(", robot radius {} m", p.robot_radius_m);
     }
+    if p.near_field != true_cost() {
+        cap += &format!(", {} near field", p.near_field);
+    }
     if p.pose_noise_m > 0.0 || p.yaw_noise_deg > 0.0 {
         cap += &format!(
             ", pose noise {} m / {} deg",
@@ -540,7 +556,7 @@ pub fn header(f: &ResultsFile) -> String {
     )
 }
 
-pub const TABLE_HEAD: &str = "| scenario | method | success [95% CI] | path m | time s | cost s | time / expert | distance / expert | path - shortest m | interventions | interventions / km |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
+pub const TABLE_HEAD: &str = "| scenario | method | success [95% CI] | success / expert | path m | time s | cost s | time / expert | distance / expert | path - shortest m | interventions | interventions / km |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
 
 /// A cell's row: success rate with a 95% Wilson interval; path length,
 /// time, traversal cost and time relative to the expert over the
@@ -553,10 +569,11 @@ pub fn row(scenario: &str, method: &str, runs: &[&TrialRecord]) -> String {
         ok.iter().filter_map(|t| f(t)).collect()
     };
     format!(
-        "| {scenario} | {method} | {:.0}% [{:.0}, {:.0}] | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+        "| {scenario} | {method} | {:.0}% [{:.0}, {:.0}] | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
         100.0 * ok.len() as f64 / runs.len().max(1) as f64,
         100.0 * lo,
         100.0 * hi,
+        success_over_expert(runs),
         mean_ci(&pick(|t| Some(t.distance_m)), 0),
         mean_ci(&pick(|t| Some(t.time_s)), 0),
         mean_ci(&pick(|t| Some(t.traversal_cost_s)), 0),
@@ -572,6 +589,19 @@ pub fn row(scenario: &str, method: &str, runs: &[&TrialRecord]) -> String {
         ),
         per_km(runs),
     )
+}
+
+/// HIP section V's normalised success: the trials reached over the trials
+/// the expert reached, driven under the same rules ("-" where the expert
+/// was not driven).
+fn success_over_expert(runs: &[&TrialRecord]) -> String {
+    let driven: Vec<bool> = runs.iter().filter_map(|t| t.expert_reached).collect();
+    let expert = driven.iter().filter(|&&r| r).count();
+    if driven.is_empty() || expert == 0 {
+        return "-".into();
+    }
+    let reached = runs.iter().filter(|t| t.reached()).count();
+    format!("{:.2} ({reached}/{expert})", reached as f64 / expert as f64)
 }
 
 /// Interventions per km of straight-line start-goal distance over `runs`.
@@ -644,6 +674,7 @@ mod tests {
             pose_noise_m: 0.0,
             yaw_noise_deg: 0.0,
             robot_radius_m: 0.4,
+            near_field: "true-cost".into(),
             methods: vec![
                 MethodGraph {
                     name: "a".into(),
@@ -657,6 +688,40 @@ mod tests {
                 },
             ],
         }
+    }
+
+    #[test]
+    fn success_is_normalised_by_the_experts_on_the_same_spawns() {
+        let keys: Vec<TrialKey> = (1..=6)
+            .map(|seed| TrialKey {
+                scenario: "hip-in-distribution".into(),
+                method: "a".into(),
+                seed,
+            })
+            .collect();
+        // Seeds 3 and 6 fail (see `record`); the expert fails seed 6 only.
+        let runs: Vec<TrialRecord> = keys
+            .iter()
+            .map(|k| TrialRecord {
+                expert_reached: Some(k.seed != 6),
+                ..record(k)
+            })
+            .collect();
+        let refs: Vec<&TrialRecord> = runs.iter().collect();
+        let line = row("hip-in-distribution", "a", &refs);
+        assert!(
+            line.starts_with("| hip-in-distribution | a | 67% [30, 90] | 0.80 (4/5) |"),
+            "{line}"
+        );
+        // Without the expert driven, the column says so.
+        let plain: Vec<TrialRecord> = keys.iter().map(record).collect();
+        let refs: Vec<&TrialRecord> = plain.iter().collect();
+        assert!(row("s", "a", &refs).contains("] | - |"));
+        assert_eq!(
+            TABLE_HEAD.lines().next().unwrap().matches('|').count(),
+            row("s", "a", &refs).matches('|').count(),
+            "as many columns as the head"
+        );
     }
 
     /// A made-up result per trial: every third fails, numbers vary by key.
@@ -682,6 +747,7 @@ mod tests {
             expert_time_s: Some(35.0),
             expert_distance_m: Some(50.0),
             shortest_path_m: Some(60.0),
+            expert_reached: None,
             time_limit_s: 105.0,
             frames: 400,
             frames_without_command: 0,
@@ -844,6 +910,22 @@ mod tests {
                     robot_model: p.versions.robot_model + 1,
                     ..p.versions.clone()
                 },
+                ..p.clone()
+            },
+            Protocol {
+                intervention_rule: "end-trial".into(),
+                ..p.clone()
+            },
+            Protocol {
+                robot_radius_m: 0.25,
+                ..p.clone()
+            },
+            Protocol {
+                near_field: "height-threshold".into(),
+                ..p.clone()
+            },
+            Protocol {
+                pose_noise_m: 0.1,
                 ..p.clone()
             },
         ];
