@@ -68,6 +68,17 @@ pub enum ExecutionProvider {
     Tensorrt,
 }
 
+impl ExecutionProvider {
+    /// The name the model config spells it with.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Cpu => "cpu",
+            Self::Cuda => "cuda",
+            Self::Tensorrt => "tensorrt",
+        }
+    }
+}
+
 /// The model's image input.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

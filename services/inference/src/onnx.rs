@@ -23,7 +23,7 @@ pub enum LoadError {
     MissingModel(String),
     #[error("loading model {path}: {detail}")]
     Session { path: String, detail: String },
-    #[error("execution provider {provider:?} is not available in this ONNX Runtime ({detail}); use a build with it (e.g. the onnxruntime-gpu wheel) or execution_provider = \"cpu\"")]
+    #[error("execution provider \"{}\" is not available in this ONNX Runtime ({detail}); use a build with it (e.g. the onnxruntime-gpu wheel) or execution_provider = \"cpu\"", provider.name())]
     Provider {
         provider: ExecutionProvider,
         detail: String,

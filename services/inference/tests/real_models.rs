@@ -119,6 +119,29 @@ fn a_model_whose_shape_does_not_match_its_config_is_refused_with_both_shapes() {
     );
 }
 
+/// This machine's ONNX Runtime is the CPU build and it has no GPU: asking
+/// for CUDA or TensorRT must fail at load with the provider named, never
+/// fall back to the CPU silently (issue 21, item 8).
+#[test]
+fn a_gpu_provider_this_runtime_lacks_is_refused_by_name() {
+    use farsight_inference::model_config::ExecutionProvider;
+    for (provider, name) in [
+        (ExecutionProvider::Cuda, "cuda"),
+        (ExecutionProvider::Tensorrt, "tensorrt"),
+    ] {
+        let mut config = ModelConfig::load(&repo().join("deploy/models/twinlitenet.toml")).unwrap();
+        config.execution_provider = provider;
+        let e = OnnxModel::load(&config).err().expect("must refuse");
+        assert!(matches!(e, LoadError::Provider { .. }), "{e}");
+        let msg = e.to_string();
+        assert!(
+            msg.starts_with(&format!("execution provider \"{name}\" is not available")),
+            "{msg}"
+        );
+        assert!(msg.contains("execution_provider = \"cpu\""), "{msg}");
+    }
+}
+
 #[test]
 fn a_missing_model_file_is_a_clear_error() {
     let mut config = ModelConfig::load(&repo().join("deploy/models/twinlitenet.toml")).unwrap();
