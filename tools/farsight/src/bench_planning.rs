@@ -2,17 +2,60 @@
 //! this machine: a far-field observation into the fused map (FITAM default
 //! geometry, 201x201 window), exporting the fused layer, and D* Lite on a
 //! `side` x `side` grid: the first search, a repair after the robot moves and
-//! 25 cells near it change, and A* from scratch on the same changed grid.
+//! 25 cells near it change, and A* from scratch on the same changed grid;
+//! beside the first search, A* of the well-kept `pathfinding` crate and the
+//! project's own A* on the same grid (issue 21, item 2: the yardstick).
 
 use crate::bench::PlanningArgs;
 use anyhow::Result;
 use farsight_costmap_fusion::kalman::FarFieldConfig;
 use farsight_costmap_fusion::map::FusionMap;
-use farsight_costmap_fusion::swath::PolarGeometry;
+use farsight_costmap_fusion::swath::{for_each_swath_cell, PolarGeometry};
 use farsight_interfaces::msg::{CostmapLayer, PolarCell, Stamp};
 use farsight_sim::rng::SplitMix64;
 use farsight_subgoal_selection::dstar_lite::{astar, CostGrid, DStarLite};
 use std::time::Instant;
+
+/// Edge costs in whole microseconds: the crate's A* needs an ordered
+/// integer-like cost.
+const MICROS: f64 = 1e6;
+
+/// A* of the `pathfinding` crate over `grid`, 8-connected with the
+/// planner's own step costs ([`CostGrid::step_cost`], no corner cutting),
+/// the octile heuristic at `min_cost_s_per_m`; the path's cost in
+/// microseconds.
+fn pathfinding_astar(
+    grid: &CostGrid,
+    start: (usize, usize),
+    goal: (usize, usize),
+    min_cost_s_per_m: f64,
+) -> Option<u64> {
+    let (w, h) = (grid.width as i64, grid.height as i64);
+    let scale = min_cost_s_per_m * grid.resolution_m * MICROS;
+    let successors = |&(x, y): &(usize, usize)| {
+        let mut out = Vec::with_capacity(8);
+        for (dx, dy) in [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)] {
+            let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+            if nx < 0 || ny < 0 || nx >= w || ny >= h {
+                continue;
+            }
+            let n = (nx as usize, ny as usize);
+            let c = grid.step_cost((x, y), n);
+            if c.is_finite() {
+                out.push((n, (c * MICROS).round() as u64));
+            }
+        }
+        out
+    };
+    // Octile distance, floored a little below so that rounding the edges
+    // never makes it overestimate.
+    let heuristic = |&(x, y): &(usize, usize)| {
+        let (dx, dy) = (x.abs_diff(goal.0) as f64, y.abs_diff(goal.1) as f64);
+        let octile = dx.max(dy) + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy);
+        ((octile * scale) * 0.999).floor() as u64
+    };
+    pathfinding::directed::astar::astar(&start, successors, heuristic, |&c| c == goal).map(|p| p.1)
+}
 
 fn median_ms(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -77,14 +120,27 @@ pub fn run(a: PlanningArgs) -> Result<()> {
     grid.set(start.0, start.1, 1.0);
     grid.set(goal.0, goal.1, 1.0);
     let (mut first, mut repair, mut scratch) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut crate_astar, mut own_astar) = (Vec::new(), Vec::new());
+    let mut first_cost = (0.0, 0.0, 0.0);
     let (mut first_exp, mut repair_exp) = (0, 0);
     for _ in 0..runs {
         let mut g = grid.clone();
         let mut d = DStarLite::new(g.clone(), start, goal, 0.2);
         let t = Instant::now();
-        d.compute();
+        let dstar_cost = d.compute();
         first.push(t.elapsed().as_secs_f64());
         first_exp = d.expanded;
+        let t = Instant::now();
+        let theirs = pathfinding_astar(&g, start, goal, 0.2);
+        crate_astar.push(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        let ours = astar(&g, start, goal, 0.2);
+        own_astar.push(t.elapsed().as_secs_f64());
+        first_cost = (
+            dstar_cost.unwrap_or(f64::INFINITY),
+            theirs.map_or(f64::INFINITY, |c| c as f64 / MICROS),
+            ours.map_or(f64::INFINITY, |p| p.1),
+        );
         // Drive 5 cells along the path; 25 cells within 20 m of the robot change.
         let path = d.path();
         let robot = path.get(5).copied().unwrap_or(start);
@@ -111,11 +167,157 @@ pub fn run(a: PlanningArgs) -> Result<()> {
         scratch.push(t.elapsed().as_secs_f64());
     }
     let (f, r, s) = (median_ms(first), median_ms(repair), median_ms(scratch));
-    println!("| D* Lite first search | {f:.1} | {side}x{side} grid, {first_exp} expansions |");
+    let (pf, own) = (median_ms(crate_astar), median_ms(own_astar));
+    println!("| D* Lite first search | {f:.1} | {side}x{side} grid, {first_exp} expansions; {:.2}x the pathfinding crate's A* |", f / pf.max(1e-9));
+    println!(
+        "| A* of the pathfinding crate | {pf:.1} | same grid and start and goal; path cost {:.3} s (D* Lite {:.3} s) |",
+        first_cost.1, first_cost.0
+    );
+    println!(
+        "| the project's A* | {own:.1} | same grid; path cost {:.3} s |",
+        first_cost.2
+    );
     println!("| D* Lite repair | {r:.2} | after 25 changed cells near the robot, {repair_exp} expansions |");
     println!(
         "| A* from scratch | {s:.1} | same changed grid; repair is {:.0}x faster |",
         s / r.max(1e-9)
     );
+    fitam_repair(runs);
+    guided_goal_moves(runs);
     Ok(())
+}
+
+/// A FITAM step on the grid a 2 km trial plans on: D* Lite repaired after
+/// one far-field observation (every swath cell 25-100 m ahead) and the
+/// 25 m near field change, against A* from scratch on the changed grid.
+fn fitam_repair(runs: usize) {
+    // A goal 1.84 km away diagonally (random-long) and the planner's 30 m
+    // margin: about 1360 cells a side.
+    let side = 1360;
+    let mut rng = SplitMix64::new(11);
+    let mut grid = CostGrid::new(side, side, 1.0, 1.0);
+    for y in 0..side {
+        for x in 0..side {
+            if rng.unit() < 0.05 {
+                grid.set(x, y, f32::INFINITY);
+            }
+        }
+    }
+    let (start, goal) = ((30, 30), (side - 31, side - 31));
+    let geometry = PolarGeometry::fitam_default();
+    let class_costs = [2.0f32, 0.444, 0.235];
+    let (mut repair, mut scratch, mut cells, mut exp) = (Vec::new(), Vec::new(), 0, 0);
+    let mut d = DStarLite::new(grid.clone(), start, goal, 0.2);
+    d.compute();
+    let mut robot = start;
+    for _ in 0..runs {
+        // 20 m along the plan, as FITAM's agent travels.
+        let path = d.path();
+        robot = path.get(20).copied().unwrap_or(robot);
+        let next = path.get(21).copied().unwrap_or(goal);
+        let yaw = (next.1 as f64 - robot.1 as f64).atan2(next.0 as f64 - robot.0 as f64);
+        d.move_start(robot);
+        let mut changed = Vec::new();
+        for_each_swath_cell(
+            &geometry,
+            robot.0 as f64,
+            robot.1 as f64,
+            yaw,
+            1.0,
+            |gx, gy, h, r| {
+                if gx >= 0 && gy >= 0 && (gx as usize) < side && (gy as usize) < side {
+                    let c = class_costs[(h + r + gx as usize) % 3];
+                    changed.push((gx as usize, gy as usize, c));
+                }
+            },
+        );
+        for dy in -25i64..=25 {
+            for dx in -25i64..=25 {
+                let (x, y) = (robot.0 as i64 + dx, robot.1 as i64 + dy);
+                if x >= 0 && y >= 0 && (x as usize) < side && (y as usize) < side {
+                    let lethal = rng.unit() < 0.05 && (dx, dy) != (0, 0);
+                    changed.push((x as usize, y as usize, if lethal { f32::INFINITY } else { 0.5 }));
+                }
+            }
+        }
+        changed.retain(|&(x, y, _)| (x, y) != goal);
+        cells = changed.len();
+        for &(x, y, c) in &changed {
+            grid.set(x, y, c);
+        }
+        let before = d.expanded;
+        let t = Instant::now();
+        d.set_costs(changed.iter().copied());
+        d.compute();
+        repair.push(t.elapsed().as_secs_f64());
+        exp = d.expanded - before;
+        let t = Instant::now();
+        std::hint::black_box(astar(&grid, robot, goal, 0.2));
+        scratch.push(t.elapsed().as_secs_f64());
+    }
+    let (r, s) = (median_ms(repair), median_ms(scratch));
+    println!("| D* Lite repair, FITAM step | {r:.1} | {side}x{side} grid (a 1.84 km diagonal goal), robot 20 m on, one far-field observation and the 51x51 near field: {cells} cells, {exp} expansions |");
+    println!(
+        "| A* from scratch, same step | {s:.1} | repair is {:.0}x faster |",
+        s / r.max(1e-9)
+    );
+}
+
+/// LRN's heading as D* Lite's goal (`graphs/sim/lrn-dstar.toml`: a 121 m
+/// fused window, the subgoal 25 m out, a 30 m margin): what the subgoal
+/// stage pays per frame when the guide's goal moves a cell (a new planner
+/// on the fused window, then a first search) against keeping the planner
+/// and repairing it for the next costmap.
+fn guided_goal_moves(runs: usize) {
+    use farsight_interfaces::msg::{CostCell, CostmapHeader};
+    use farsight_subgoal_selection::planner::{WorldPlanner, WorldPlannerConfig};
+    let cfg = WorldPlannerConfig {
+        margin_m: 30.0,
+        ..WorldPlannerConfig::default()
+    };
+    let side = 121usize;
+    let mut rng = SplitMix64::new(5);
+    let mut costmap = |shift: usize| -> (CostmapHeader, Vec<CostCell>) {
+        let header = CostmapHeader {
+            stamp: Stamp::default(),
+            layer: CostmapLayer::FUSED,
+            width: side as u32,
+            height: side as u32,
+            resolution_m: 1.0,
+            x_min_m: -60.0 + shift as f64,
+            y_max_m: 60.0,
+        };
+        let cells = (0..side * side)
+            .map(|_| CostCell {
+                cost_s_per_m: if rng.unit() < 0.05 { f32::INFINITY } else { 0.5 },
+                variance: 0.0,
+            })
+            .collect();
+        (header, cells)
+    };
+    let (mut rebuilt, mut kept) = (Vec::new(), Vec::new());
+    let mut planner = WorldPlanner::new([0.0, 0.0], [25.0, 0.0], &cfg);
+    let (h, c) = costmap(0);
+    planner.apply_costmap(&h, &c);
+    let _ = planner.plan([0.0, 0.0]);
+    for i in 0..runs {
+        let robot = [0.5 * i as f64, 0.0];
+        let goal = [robot[0] + 25.0, 1.0 + (i % 2) as f64];
+        let (h, c) = costmap(i / 2);
+        let t = Instant::now();
+        let mut fresh = WorldPlanner::new(robot, goal, &cfg);
+        fresh.apply_costmap(&h, &c);
+        std::hint::black_box(fresh.plan(robot).ok());
+        rebuilt.push(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        planner.apply_costmap(&h, &c);
+        std::hint::black_box(planner.plan(robot).ok());
+        kept.push(t.elapsed().as_secs_f64());
+    }
+    let (r, k) = (median_ms(rebuilt), median_ms(kept));
+    println!("| guided goal moved: new planner + first search | {r:.2} | LRN's heading as D* Lite's goal, 121x121 fused window, 30 m margin: what each frame costs now |");
+    println!(
+        "| guided goal kept: repair for the next costmap | {k:.2} | the same frame if the planner were kept; {:.1}x less |",
+        r / k.max(1e-9)
+    );
 }
