@@ -34,7 +34,16 @@ fn pathfinding_astar(
     let scale = min_cost_s_per_m * grid.resolution_m * MICROS;
     let successors = |&(x, y): &(usize, usize)| {
         let mut out = Vec::with_capacity(8);
-        for (dx, dy) in [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)] {
+        for (dx, dy) in [
+            (1, 0),
+            (-1, 0),
+            (0, 1),
+            (0, -1),
+            (1, 1),
+            (1, -1),
+            (-1, 1),
+            (-1, -1),
+        ] {
             let (nx, ny) = (x as i64 + dx, y as i64 + dy);
             if nx < 0 || ny < 0 || nx >= w || ny >= h {
                 continue;
@@ -236,7 +245,11 @@ fn fitam_repair(runs: usize) {
                 let (x, y) = (robot.0 as i64 + dx, robot.1 as i64 + dy);
                 if x >= 0 && y >= 0 && (x as usize) < side && (y as usize) < side {
                     let lethal = rng.unit() < 0.05 && (dx, dy) != (0, 0);
-                    changed.push((x as usize, y as usize, if lethal { f32::INFINITY } else { 0.5 }));
+                    changed.push((
+                        x as usize,
+                        y as usize,
+                        if lethal { f32::INFINITY } else { 0.5 },
+                    ));
                 }
             }
         }
@@ -289,7 +302,11 @@ fn guided_goal_moves(runs: usize) {
         };
         let cells = (0..side * side)
             .map(|_| CostCell {
-                cost_s_per_m: if rng.unit() < 0.05 { f32::INFINITY } else { 0.5 },
+                cost_s_per_m: if rng.unit() < 0.05 {
+                    f32::INFINITY
+                } else {
+                    0.5
+                },
                 variance: 0.0,
             })
             .collect();
