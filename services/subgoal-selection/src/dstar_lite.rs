@@ -99,7 +99,8 @@ impl CostGrid {
         c as f64 * self.resolution_m * if diagonal { SQRT2 } else { 1.0 }
     }
 
-    fn neighbours(&self, (x, y): (usize, usize)) -> impl Iterator<Item = (usize, usize)> + '_ {
+    /// The up-to-eight cells next to `(x, y)` inside the grid.
+    pub fn neighbours(&self, (x, y): (usize, usize)) -> impl Iterator<Item = (usize, usize)> + '_ {
         NEIGHBOURS.iter().filter_map(move |&(dx, dy)| {
             let (nx, ny) = (x as i64 + dx, y as i64 + dy);
             (nx >= 0 && ny >= 0 && (nx as usize) < self.width && (ny as usize) < self.height)
@@ -126,7 +127,7 @@ impl CostGrid {
 }
 
 /// Octile distance in metres times the cheapest cost per metre.
-fn octile(a: (usize, usize), b: (usize, usize), scale: f64) -> f64 {
+pub fn octile(a: (usize, usize), b: (usize, usize), scale: f64) -> f64 {
     let dx = a.0.abs_diff(b.0) as f64;
     let dy = a.1.abs_diff(b.1) as f64;
     scale * (dx.max(dy) + (SQRT2 - 1.0) * dx.min(dy))

@@ -13,7 +13,7 @@ use farsight_costmap_fusion::map::FusionMap;
 use farsight_costmap_fusion::swath::{for_each_swath_cell, PolarGeometry};
 use farsight_interfaces::msg::{CostmapLayer, PolarCell, Stamp};
 use farsight_sim::rng::SplitMix64;
-use farsight_subgoal_selection::dstar_lite::{astar, CostGrid, DStarLite};
+use farsight_subgoal_selection::dstar_lite::{astar, octile, CostGrid, DStarLite};
 use std::time::Instant;
 
 /// Edge costs in whole microseconds: the crate's A* needs an ordered
@@ -30,39 +30,19 @@ fn pathfinding_astar(
     goal: (usize, usize),
     min_cost_s_per_m: f64,
 ) -> Option<u64> {
-    let (w, h) = (grid.width as i64, grid.height as i64);
     let scale = min_cost_s_per_m * grid.resolution_m * MICROS;
-    let successors = |&(x, y): &(usize, usize)| {
-        let mut out = Vec::with_capacity(8);
-        for (dx, dy) in [
-            (1, 0),
-            (-1, 0),
-            (0, 1),
-            (0, -1),
-            (1, 1),
-            (1, -1),
-            (-1, 1),
-            (-1, -1),
-        ] {
-            let (nx, ny) = (x as i64 + dx, y as i64 + dy);
-            if nx < 0 || ny < 0 || nx >= w || ny >= h {
-                continue;
-            }
-            let n = (nx as usize, ny as usize);
-            let c = grid.step_cost((x, y), n);
-            if c.is_finite() {
-                out.push((n, (c * MICROS).round() as u64));
-            }
-        }
-        out
+    let successors = |&c: &(usize, usize)| {
+        grid.neighbours(c)
+            .filter_map(|n| {
+                let cost = grid.step_cost(c, n);
+                cost.is_finite()
+                    .then(|| (n, (cost * MICROS).round() as u64))
+            })
+            .collect::<Vec<_>>()
     };
-    // Octile distance, floored a little below so that rounding the edges
-    // never makes it overestimate.
-    let heuristic = |&(x, y): &(usize, usize)| {
-        let (dx, dy) = (x.abs_diff(goal.0) as f64, y.abs_diff(goal.1) as f64);
-        let octile = dx.max(dy) + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy);
-        ((octile * scale) * 0.999).floor() as u64
-    };
+    // The planner's octile heuristic, floored a little below so that
+    // rounding the edges never makes it overestimate.
+    let heuristic = |&c: &(usize, usize)| (octile(c, goal, scale) * 0.999).floor() as u64;
     pathfinding::directed::astar::astar(&start, successors, heuristic, |&c| c == goal).map(|p| p.1)
 }
 
@@ -337,4 +317,38 @@ fn guided_goal_moves(runs: usize) {
         "| guided goal kept: repair for the next costmap | {k:.2} | the same frame if the planner were kept; {:.1}x less |",
         r / k.max(1e-9)
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_crates_astar_finds_the_planners_path_cost_on_the_same_grid() {
+        let mut rng = SplitMix64::new(3);
+        let mut grid = CostGrid::new(60, 60, 1.0, 1.0);
+        for y in 0..60 {
+            for x in 0..60 {
+                let c = if rng.unit() < 0.15 {
+                    f32::INFINITY
+                } else {
+                    (0.2 + 2.0 * rng.unit()) as f32
+                };
+                grid.set(x, y, c);
+            }
+        }
+        let (start, goal) = ((2, 30), (57, 30));
+        grid.set(start.0, start.1, 1.0);
+        grid.set(goal.0, goal.1, 1.0);
+        let ours = astar(&grid, start, goal, 0.2).expect("a way across").1;
+        let theirs =
+            pathfinding_astar(&grid, start, goal, 0.2).expect("the same way") as f64 / MICROS;
+        // Edges rounded to the microsecond: at most a microsecond per step apart.
+        assert!((ours - theirs).abs() < 1e-4, "{ours} vs {theirs}");
+        // A walled-off goal: neither finds a way.
+        for y in 0..60 {
+            grid.set(50, y, f32::INFINITY);
+        }
+        assert!(pathfinding_astar(&grid, start, goal, 0.2).is_none());
+    }
 }
