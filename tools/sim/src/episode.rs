@@ -32,14 +32,16 @@
 //!   the carry-back rule left it inside.
 //!
 //! - [`InterventionRule::EndTrial`] (HIP section V: success is "reaching
-//!   the goal unharmed"): the first contact with anything lethal, or being
-//!   stuck as the carry-back rule judges it (HIP's "stuck" and "trapped"
-//!   collisions), ends the trial as [`Outcome::Harmed`].
+//!   the goal unharmed"): the first contact with anything lethal, or a
+//!   stall by HIP's own heuristics ([`crate::stall`]: stationary for over
+//!   4 s, or less than 3 m in 10 s), ends the trial as [`Outcome::Harmed`].
+//!   Reaching the goal on the step a stall is noticed is reaching it.
 //!
 //! Carried stretches are not driven: they add neither distance, time nor
 //! cost.
 
 use crate::render::PALETTE;
+use crate::stall::StallDetector;
 
 /// Version of the stuck and intervention rule, hashed into every benchmark
 /// result: change it whenever [`EpisodeConfig`]'s defaults or
@@ -50,7 +52,10 @@ use crate::render::PALETTE;
 /// 3: the rule is chosen per run ([`InterventionRule`], recorded beside
 /// this version); carry-back unchanged; LRN section IV's operator added.
 /// 4: HIP's end-trial rule added; the other rules unchanged.
-pub const INTERVENTION_RULE_VERSION: u32 = 4;
+/// 5: the end-trial rule judges stalls by HIP's stuck and trapped
+/// heuristics ([`crate::stall`]), not the carry-back window; the goal is
+/// judged before a stall on the same step. The other rules unchanged.
+pub const INTERVENTION_RULE_VERSION: u32 = 5;
 use crate::robot::{Robot, RobotLimits};
 use crate::scenario::Scenario;
 
@@ -209,6 +214,8 @@ pub struct Episode {
     window_reach_m: f64,
     /// The operator's state under [`InterventionRule::Operator`].
     operator: Option<Operator>,
+    /// HIP's stall heuristics under [`InterventionRule::EndTrial`].
+    stall: StallDetector,
     outcome: Outcome,
 }
 
@@ -227,6 +234,8 @@ struct Operator {
 impl Episode {
     pub fn new(scenario: Scenario, config: EpisodeConfig) -> Self {
         let robot = Robot::at(scenario.start);
+        let mut stall = StallDetector::default();
+        stall.observe(0.0, [robot.x_m, robot.y_m]);
         Self {
             track: vec![[robot.x_m, robot.y_m]],
             scenario,
@@ -238,6 +247,7 @@ impl Episode {
             window_start: (0.0, [robot.x_m, robot.y_m]),
             window_reach_m: 0.0,
             operator: None,
+            stall,
             outcome: Outcome::Driving,
         }
         .with_operator()
@@ -288,6 +298,14 @@ impl Episode {
         let here = [self.robot.x_m, self.robot.y_m];
         if self.operator.is_some() {
             self.operator_step(here);
+        } else if self.config.intervention == InterventionRule::EndTrial {
+            let stalled = self.stall.observe(self.time_s, here);
+            if stalled.is_some() && d > self.config.goal_radius_m {
+                self.interventions += 1;
+                self.intervention_points.push(here);
+                self.outcome = Outcome::Harmed;
+                return self.outcome;
+            }
         } else if self.time_s - self.window_start.0 >= self.config.stuck_window_s {
             let moved = (here[0] - self.window_start.1[0]).hypot(here[1] - self.window_start.1[1]);
             let needed = self
@@ -297,10 +315,6 @@ impl Episode {
             if moved < needed {
                 self.interventions += 1;
                 self.intervention_points.push(here);
-                if self.config.intervention == InterventionRule::EndTrial {
-                    self.outcome = Outcome::Harmed;
-                    return self.outcome;
-                }
                 self.carry_back();
             }
             self.window_start = (self.time_s, [self.robot.x_m, self.robot.y_m]);
@@ -628,7 +642,8 @@ mod tests {
         assert_eq!(sum.outcome, Outcome::Harmed, "{sum:?}");
         assert!(sum.time_s < 25.0 && sum.collisions == 1, "{sum:?}");
         assert_eq!(e.intervention_points.len(), 1, "marked where it hit");
-        // Standing still touches nothing but is stuck: harmed at 10 s.
+        // Standing still touches nothing but is stuck: harmed just after 4 s
+        // (HIP's "stationary for over 4 seconds").
         let mut e = Episode::new(scenario("bug-trap", 1).unwrap(), cfg);
         while e.step((0.0, 0.0), 0.1) == Outcome::Driving {}
         let sum = e.summary();
@@ -636,6 +651,13 @@ mod tests {
             (sum.outcome, sum.collisions, sum.interventions),
             (Outcome::Harmed, 0, 1)
         );
+        assert!(sum.time_s > 4.0 && sum.time_s < 4.25, "{sum:?}");
+        // Crawling at 0.2 m/s touches nothing and is never stationary, but
+        // covers under 3 m in 10 s: trapped, harmed at 10 s.
+        let mut e = Episode::new(scenario("bug-trap", 1).unwrap(), cfg);
+        while e.step((0.2, 0.0), 0.1) == Outcome::Driving {}
+        let sum = e.summary();
+        assert_eq!((sum.outcome, sum.collisions), (Outcome::Harmed, 0));
         assert!((sum.time_s - 10.0).abs() < 0.11, "{sum:?}");
         // Once ended, further commands change nothing.
         assert_eq!(e.step((2.0, 0.0), 0.1), Outcome::Harmed);

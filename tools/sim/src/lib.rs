@@ -10,6 +10,7 @@
 //! - [`robot`]: a unicycle with acceleration and terrain speed limits, collisions;
 //! - [`sensor`]: the occlusion-aware 25 m near-field costmap;
 //! - [`fitam_protocol`]: FITAM's kinematic sense-plan-act evaluation (section V);
+//! - [`stall`]: HIP's stuck and trapped heuristics, for [`sticky`] and [`episode`]'s end-trial rule;
 //! - [`sticky`]: HIP's data collection (sticky random actions) and its trajectory library;
 //! - [`episode`]: one drive: robot, metrics (reached, time, distance, cost,
 //!   collisions, interventions) and the map PNG with the track.
@@ -37,5 +38,6 @@ pub mod run;
 pub mod scenario;
 pub mod sensor;
 pub mod sim_robot;
+pub mod stall;
 pub mod sticky;
 pub mod world;

@@ -8,12 +8,14 @@
 //!
 //! A collision is the paper's three heuristics as this simulator can judge
 //! them: a contact with anything lethal (the unicycle stops or slides), a
-//! "stuck" robot (stationary for 4 s) and a "trapped" one (less than 3 m in
-//! 10 s). The last `horizon_s` before a collision are cut, so no recorded
+//! "stuck" robot (stationary for over 4 s) and a "trapped" one (less than
+//! 3 m in 10 s), the last two by [`crate::stall`]. The last `horizon_s`
+//! before a contact, or before a stall's onset, are cut, so no recorded
 //! future leads into one.
 
 use crate::rng::SplitMix64;
 use crate::robot::{Robot, RobotLimits};
+use crate::stall::{Stall, StallDetector};
 use crate::world::World;
 use farsight_subgoal_selection::hip::{future_trajectories, kmeans, LibraryFile};
 
@@ -90,8 +92,7 @@ pub fn sticky_random_drive(world: &World, cfg: &StickyConfig, seed: u64) -> Stic
     let mut segment: Segment = Vec::new();
     let (mut t, mut next_action, mut next_record) = (0.0, 0.0, 0.0);
     let mut action = (0.0, 0.0);
-    // Where the robot was 4 s and 10 s ago: the stuck and trapped rules.
-    let mut history: std::collections::VecDeque<(f64, [f64; 2])> = Default::default();
+    let mut stall = StallDetector::default();
     while t < cfg.duration_s {
         if t >= next_action {
             action = (
@@ -103,29 +104,19 @@ pub fn sticky_random_drive(world: &World, cfg: &StickyConfig, seed: u64) -> Stic
         let before = robot.collisions;
         robot.step(world, action, cfg.dt_s, lim);
         t += cfg.dt_s;
-        let here = [robot.x_m, robot.y_m];
-        history.push_back((t, here));
-        while history.front().is_some_and(|(t0, _)| t - t0 > 10.0) {
-            history.pop_front();
-        }
-        let moved_since = |age_s: f64| {
-            history
-                .iter()
-                .find(|(t0, _)| t - t0 <= age_s)
-                .map(|(_, p)| (p[0] - here[0]).hypot(p[1] - here[1]))
-        };
-        let segment_s = segment.first().map_or(0.0, |p| t - p.0);
-        let stuck = segment_s >= 4.0 && moved_since(4.0).is_some_and(|d| d < 0.05);
-        let trapped = segment_s >= 10.0 && moved_since(10.0).is_some_and(|d| d < 3.0);
-        if robot.collisions > before || stuck || trapped {
+        let stalled = stall.observe(t, [robot.x_m, robot.y_m]);
+        if robot.collisions > before || stalled.is_some() {
             out.collisions += 1;
-            let keep_until = t - cfg.horizon_s;
+            // A stall began at its onset, not when the window showed it:
+            // the standing or circling before it is cut with the horizon.
+            let since = stalled.map_or(t, Stall::onset_s);
+            let keep_until = since - cfg.horizon_s;
             segment.retain(|p| p.0 <= keep_until);
             if !segment.is_empty() {
                 out.segments.push(std::mem::take(&mut segment));
             }
             robot = Robot::at(spawn(world, &mut rng, lim.radius_m));
-            history.clear();
+            stall.reset();
             next_action = t;
             next_record = t;
             continue;
@@ -197,6 +188,11 @@ mod tests {
             for &(_, x, y, _) in s {
                 assert!(Robot::footprint_free(&world, x, y, cfg.limits.radius_m));
             }
+            // Cut back to before each stall's onset: what is kept shows none.
+            let mut stall = crate::stall::StallDetector::default();
+            for &(t, x, y, _) in s {
+                assert_eq!(stall.observe(t, [x, y]), None, "at {t} s");
+            }
         }
         // The same seed drives the same sequences.
         assert_eq!(sticky_random_drive(&world, &cfg, 7), drive);
@@ -209,6 +205,35 @@ mod tests {
         assert!(mean_x > 0.5, "{mean_x}");
         for t in &lib.trajectories {
             assert!(t[9][0].hypot(t[9][1]) <= cfg.limits.max_linear_mps * 2.0 + 0.1);
+        }
+    }
+
+    #[test]
+    fn a_stall_cuts_back_to_its_onset_not_to_when_it_was_noticed() {
+        // Open grass, but a robot too slow to count as moving: at 1 cm/s
+        // it is stuck from its spawn, at 0.2 m/s trapped from it. Cutting
+        // the horizon before the stall's onset keeps nothing; cutting it
+        // before the moment the window noticed would keep 2 s of standing
+        // and 8 s of crawling.
+        let world = World::new(40, 40, Cover::Grass);
+        for max_linear_mps in [0.01, 0.2] {
+            let cfg = StickyConfig {
+                duration_s: 120.0,
+                limits: RobotLimits {
+                    max_linear_mps,
+                    ..Default::default()
+                },
+                ..Default::default()
+            };
+            let drive = sticky_random_drive(&world, &cfg, 3);
+            assert!(
+                drive.collisions >= 8,
+                "{max_linear_mps}: {}",
+                drive.collisions
+            );
+            let kept: usize = drive.segments.iter().map(Vec::len).sum();
+            // Only the drive's unfinished tail can remain.
+            assert!(kept <= 50, "{max_linear_mps}: {kept} poses kept");
         }
     }
 }
