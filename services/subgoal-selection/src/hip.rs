@@ -14,7 +14,9 @@
 //!   (`farsight_costmap_fusion::hip::hip_scaled_costmap`); a trajectory
 //!   that takes the robot's disc (`robot_radius_m`) over a lethal cell is
 //!   never chosen ([`disc_touches_lethal`]: costmap_2d's inscribed
-//!   inflation, which the paper's costmap had, done on the exact disc).
+//!   inflation, which the paper's costmap had, done on the exact disc);
+//!   a robot already nearer than its radius may turn or back away but
+//!   not get closer ([`required_clearance_m`]).
 //!
 //! The planner picks the argmin. [`kmeans`] and [`future_trajectories`] build
 //! the library from recorded poses (`farsight hip-library`).
@@ -122,17 +124,29 @@ pub fn disc_touches_lethal(
     w: [f64; 2],
     radius_m: f64,
 ) -> bool {
+    lethal_clearance_m(h, costs, w, radius_m) < radius_m
+}
+
+/// Distance (m) from world point `w` to the nearest lethal cell's square
+/// (cells as [`disc_touches_lethal`]), or `max_m` when none is nearer.
+pub fn lethal_clearance_m(
+    h: &farsight_interfaces::msg::CostmapHeader,
+    costs: &[f32],
+    w: [f64; 2],
+    max_m: f64,
+) -> f64 {
     let res = h.resolution_m as f64;
     let col = |x: f64| ((x - h.x_min_m) / res + 0.5).floor() as i64;
     let row = |y: f64| ((h.y_max_m - y) / res + 0.5).floor() as i64;
     let (j0, j1) = (
-        col(w[0] - radius_m).max(0),
-        col(w[0] + radius_m).min(h.width as i64 - 1),
+        col(w[0] - max_m).max(0),
+        col(w[0] + max_m).min(h.width as i64 - 1),
     );
     let (i0, i1) = (
-        row(w[1] + radius_m).max(0),
-        row(w[1] - radius_m).min(h.height as i64 - 1),
+        row(w[1] + max_m).max(0),
+        row(w[1] - max_m).min(h.height as i64 - 1),
     );
+    let mut nearest_sq = max_m * max_m;
     for i in i0..=i1 {
         for j in j0..=j1 {
             let Some(&c) = costs.get(i as usize * h.width as usize + j as usize) else {
@@ -144,12 +158,26 @@ pub fn disc_touches_lethal(
             let (xc, yc) = (h.x_min_m + j as f64 * res, h.y_max_m - i as f64 * res);
             let dx = ((w[0] - xc).abs() - res / 2.0).max(0.0);
             let dy = ((w[1] - yc).abs() - res / 2.0).max(0.0);
-            if dx * dx + dy * dy < radius_m * radius_m {
-                return true;
-            }
+            nearest_sq = nearest_sq.min(dx * dx + dy * dy);
         }
     }
-    false
+    nearest_sq.sqrt()
+}
+
+/// The clearance from lethal cells every point of a chosen trajectory
+/// keeps: the robot's `radius_m`, or, where the robot already stands
+/// nearer than that (an obstacle seen late, a body smaller than the
+/// planner's disc, a slide along a trunk), the clearance it has now. It
+/// may then turn or back away, never get closer; without this every
+/// trajectory fails the disc check and the planner sends nothing until
+/// the command goes stale.
+pub fn required_clearance_m(
+    h: &farsight_interfaces::msg::CostmapHeader,
+    costs: &[f32],
+    robot_w: [f64; 2],
+    radius_m: f64,
+) -> f64 {
+    lethal_clearance_m(h, costs, robot_w, radius_m)
 }
 
 /// The chosen trajectory and its cost terms.
@@ -388,6 +416,17 @@ mod tests {
         );
         // Off the map is not lethal; a point far outside touches nothing.
         assert!(!disc_touches_lethal(&h, &costs, [-30.0, 2.0], r));
+
+        // In the open the rule is the disc: the radius.
+        assert_eq!(required_clearance_m(&h, &costs, [0.0, 0.0], r), r);
+        // A robot 0.3 m from the trunk may keep or grow that, not shrink it.
+        let need = required_clearance_m(&h, &costs, [1.2, 2.0], r);
+        assert!((need - 0.3).abs() < 1e-9, "{need}");
+        let keeps = |w: [f64; 2]| lethal_clearance_m(&h, &costs, w, r) >= need;
+        assert!(keeps([0.9, 2.0]), "backing away");
+        assert!(keeps([1.2, 2.3]), "along the trunk");
+        assert!(!keeps([1.3, 2.0]), "closer");
+        assert!(!keeps([2.0, 2.0]), "into it");
     }
 
     fn line(dx: f64, dy: f64) -> Trajectory {

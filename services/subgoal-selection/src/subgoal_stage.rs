@@ -28,7 +28,7 @@
 //! are judged on the inputs' capture times, and the costmap planners plan
 //! once per costmap, so a run is the same on any machine.
 
-use crate::hip::{choose, disc_touches_lethal, LibraryFile, Trajectory};
+use crate::hip::{choose, lethal_clearance_m, required_clearance_m, LibraryFile, Trajectory};
 use crate::lrn_head::{LrnHead, LrnHeadConfig};
 use crate::planner::WorldPlanner;
 use crate::povnav::{plan, safe_half_widths, Mode, PovnavComponents};
@@ -963,9 +963,10 @@ impl MapPlan {
                 // would need the map's softmax sum, so count it as free (0)
                 // rather than invent one; the directive still pulls to the goal.
                 let radius_m = config.hip.robot_radius_m;
+                let clearance_m = required_clearance_m(h, scaled, robot, radius_m);
                 let at = |q: [f64; 2]| {
                     let w = p.to_world_frame(q);
-                    if disc_touches_lethal(h, scaled, w, radius_m) {
+                    if lethal_clearance_m(h, scaled, w, radius_m) < clearance_m {
                         return f64::INFINITY;
                     }
                     match h.cell_index(w[0], w[1]).map(|k| scaled[k]) {
