@@ -257,7 +257,7 @@ fn protocol(a: &NavArgs, rows: &[(String, String, PathBuf)]) -> Result<Protocol>
         pose_noise_m: a.pose_noise_m,
         yaw_noise_deg: a.yaw_noise_deg,
         robot_radius_m: a.robot_radius_m,
-        near_field: a.near_field.name().into(),
+        near_field: a.near_field.describe(),
         methods: rows
             .iter()
             .map(|(m, shown, path)| MethodGraph::read(m, shown, path))

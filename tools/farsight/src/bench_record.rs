@@ -65,12 +65,19 @@ impl Versions {
     }
 }
 
-/// A row of the benchmark: its name, graph file and the file's SHA-256.
+/// A row of the benchmark: its name, graph file and the file's SHA-256,
+/// and the SHA-256 of every file the graph's nodes read (a HIP library, a
+/// model config and the ONNX file it names), so a retrained model or a
+/// rebuilt library is a different protocol even when the graph is not.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct MethodGraph {
     pub name: String,
     pub graph: String,
     pub sha256: String,
+    /// Path as the graph (or a config it names) writes it, relative to the
+    /// graph's folder -> SHA-256.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub inputs: BTreeMap<String, String>,
 }
 
 impl MethodGraph {
@@ -78,11 +85,65 @@ impl MethodGraph {
     pub fn read(name: &str, shown: &str, path: &Path) -> Result<Self> {
         let bytes = std::fs::read(path)
             .with_context(|| format!("reading {} to hash it", path.display()))?;
+        let mut inputs = BTreeMap::new();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let dir = path.parent().unwrap_or(Path::new(""));
+            hash_named_files(&bytes, path, dir, Path::new(""), 2, &mut inputs)?;
+        }
         Ok(Self {
             name: name.to_string(),
             graph: shown.to_string(),
             sha256: sha256_hex(&bytes),
+            inputs,
         })
+    }
+}
+
+/// Hashes every file a TOML document's string values name (relative to
+/// `dir`, where the document lies; recorded under `shown_dir`), and, up to
+/// `depth` levels, the files named by the TOML files among them.
+fn hash_named_files(
+    toml_bytes: &[u8],
+    path: &Path,
+    dir: &Path,
+    shown_dir: &Path,
+    depth: usize,
+    out: &mut BTreeMap<String, String>,
+) -> Result<()> {
+    let text = std::str::from_utf8(toml_bytes)
+        .with_context(|| format!("{} is not UTF-8", path.display()))?;
+    let doc: toml::Value =
+        toml::from_str(text).with_context(|| format!("parsing {}", path.display()))?;
+    let mut strings = Vec::new();
+    collect_strings(&doc, &mut strings);
+    for s in strings {
+        let file = dir.join(s);
+        if !file.is_file() {
+            continue;
+        }
+        let shown = shown_dir.join(s);
+        let key = shown.to_string_lossy().into_owned();
+        if out.contains_key(&key) {
+            continue;
+        }
+        let bytes = std::fs::read(&file)
+            .with_context(|| format!("reading {} to hash it", file.display()))?;
+        out.insert(key, sha256_hex(&bytes));
+        if depth > 1 && file.extension().is_some_and(|e| e == "toml") {
+            let sub_dir = file.parent().unwrap_or(Path::new(""));
+            let sub_shown = shown.parent().unwrap_or(Path::new(""));
+            hash_named_files(&bytes, &file, sub_dir, sub_shown, depth - 1, out)?;
+        }
+    }
+    Ok(())
+}
+
+fn collect_strings<'a>(v: &'a toml::Value, out: &mut Vec<&'a str>) {
+    match v {
+        toml::Value::String(s) => out.push(s),
+        toml::Value::Array(a) => a.iter().for_each(|v| collect_strings(v, out)),
+        toml::Value::Table(t) => t.values().for_each(|v| collect_strings(v, out)),
+        _ => {}
     }
 }
 
@@ -110,8 +171,9 @@ pub struct Protocol {
     /// The simulated robot's disc footprint (m).
     #[serde(default = "default_radius")]
     pub robot_radius_m: f64,
-    /// `farsight_sim::sensor::CostModel::name`: `true-cost` or
-    /// `height-threshold` (HIP section III's geometric costmap).
+    /// `farsight_sim::sensor::CostModel::describe`: `true-cost` or
+    /// `height-threshold (...)` with its threshold and free cost (HIP
+    /// section III's geometric costmap).
     #[serde(default = "true_cost")]
     pub near_field: String,
     pub methods: Vec<MethodGraph>,
@@ -680,14 +742,60 @@ mod tests {
                     name: "a".into(),
                     graph: "graphs/sim/a.toml".into(),
                     sha256: "aa".into(),
+                    inputs: Default::default(),
                 },
                 MethodGraph {
                     name: "b".into(),
                     graph: "graphs/sim/b.toml".into(),
                     sha256: "bb".into(),
+                    inputs: Default::default(),
                 },
             ],
         }
+    }
+
+    #[test]
+    fn a_method_hashes_the_files_its_graph_reads_and_the_models_they_name() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let hip =
+            MethodGraph::read("hip", "hip", &root.join("graphs/sim/hip-costmap.toml")).unwrap();
+        let lib = std::fs::read(root.join("deploy/models/sim-hip/hip-library.toml")).unwrap();
+        assert_eq!(
+            hip.inputs
+                .get("../../deploy/models/sim-hip/hip-library.toml"),
+            Some(&sha256_hex(&lib)),
+            "{:?}",
+            hip.inputs
+        );
+        // A model config, and the ONNX file it names beside itself.
+        let lrn = MethodGraph::read("lrn", "lrn", &root.join("graphs/sim/lrn.toml")).unwrap();
+        let onnx = std::fs::read(root.join("deploy/models/sim-lrn/model.onnx")).unwrap();
+        assert!(lrn
+            .inputs
+            .contains_key("../../deploy/models/sim-lrn/model.toml"));
+        assert_eq!(
+            lrn.inputs.get("../../deploy/models/sim-lrn/model.onnx"),
+            Some(&sha256_hex(&onnx)),
+            "{:?}",
+            lrn.inputs
+        );
+        // A changed library is a different protocol.
+        let dir =
+            std::env::temp_dir().join(format!("farsight-method-inputs-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("g.toml"), "[[node]]\nlib = \"lib.toml\"\n").unwrap();
+        std::fs::write(dir.join("lib.toml"), "k = 1\n").unwrap();
+        let a = MethodGraph::read("m", "g", &dir.join("g.toml")).unwrap();
+        std::fs::write(dir.join("lib.toml"), "k = 2\n").unwrap();
+        let b = MethodGraph::read("m", "g", &dir.join("g.toml")).unwrap();
+        assert_eq!(a.sha256, b.sha256);
+        assert_ne!(a, b);
+        // Unparsable TOML is an error naming the file.
+        std::fs::write(dir.join("lib.toml"), "k = = 2\n").unwrap();
+        std::fs::write(dir.join("g.toml"), "[[node]]\nlib = \"lib.toml\"\nx = 1\n").unwrap();
+        let e = MethodGraph::read("m", "g", &dir.join("g.toml")).unwrap_err();
+        assert!(format!("{e:#}").contains("lib.toml"), "{e:#}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
@@ -934,6 +1042,9 @@ mod tests {
         }
         let mut g = p.clone();
         g.methods[0].sha256 = "ab".into();
+        assert_ne!(g.hash(), h);
+        let mut g = p.clone();
+        g.methods[0].inputs.insert("lib.toml".into(), "cd".into());
         assert_ne!(g.hash(), h);
     }
 

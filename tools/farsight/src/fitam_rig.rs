@@ -173,12 +173,12 @@ impl FarFieldSource for LearnedRig {
             class_ids: false,
         };
         let mut per_camera = Vec::with_capacity(self.cameras.len());
-        for (id, cam) in self.cameras.iter_mut().enumerate() {
+        for cam in self.cameras.iter_mut() {
             cam.renderer
                 .render_channels(world, pose, &mut self.frame, rgb_only);
             let header = ImageHeader::packed(
                 Stamp::new(self.frames, 0),
-                id as u32,
+                cam.renderer.camera().id,
                 self.frame.width as u32,
                 self.frame.height as u32,
                 PixelEncoding::RGB8,

@@ -247,10 +247,11 @@ pub fn hip_world(world_seed: u64, novel_walls: bool) -> World {
 
 /// A spawn on a HIP world for trial `seed` (HIP section V: "randomly
 /// spawned 300 times in the geofence with a goal at least 10 m away"):
-/// start and goal where the robot's disc fits, 10-25 m apart and 3 m from
-/// the fence, with a way between them for the robot (the expert's success
-/// is the yardstick, so spawns it cannot solve are drawn again); facing a
-/// random direction.
+/// start and goal where the default robot's disc fits (`RobotLimits`'
+/// radius, whatever `--robot-radius-m` a run drives), 10-25 m apart and
+/// 3 m from the fence, drawn again until a path for that disc joins them
+/// (the expert can still fail a spawn; success is normalised by its
+/// successes); facing a random direction.
 fn hip_spawn(name: &str, world: World, seed: u64) -> Scenario {
     use crate::robot::{Robot, RobotLimits};
     let radius_m = RobotLimits::default().radius_m;

@@ -52,6 +52,21 @@ impl CostModel {
         }
     }
 
+    /// The name with the model's parameters, as a benchmark's protocol
+    /// records (and hashes) it: `height-threshold (0.5 m, free 0.5 s/m)`.
+    pub fn describe(self) -> String {
+        match self {
+            CostModel::TrueCost => self.name().into(),
+            CostModel::HeightThreshold {
+                threshold_m,
+                free_cost_s_per_m,
+            } => format!(
+                "{} ({threshold_m} m, free {free_cost_s_per_m} s/m)",
+                self.name()
+            ),
+        }
+    }
+
     /// The cost this model reports for cell (x, y) of `world`.
     pub fn cost_s_per_m(self, world: &World, x: i64, y: i64) -> f32 {
         match self {
