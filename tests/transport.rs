@@ -245,3 +245,64 @@ fn a_queue_costs_the_shared_memory_the_transport_states() {
     }
     assert!(grew[1] > grew[0], "{grew:?}");
 }
+
+/// `farsight bench transport` puts a WaitSet's wake-up beside raw iceoryx2
+/// event ping-pong (issue 21 item 3), and shows that a receiver asleep on a
+/// WaitSet burns next to no CPU where the polling one spins. Lock-step:
+/// every message waits for the last to be received, however busy the
+/// machine; only the CPU shares are compared, not the times.
+#[test]
+fn the_transport_bench_times_raw_event_ping_pong_and_the_waitset_receiver_sleeps() {
+    let out = std::process::Command::new(farsight_tests::bin("farsight"))
+        .args(["bench", "transport", "--count", "20", "--sizes", "64"])
+        .output()
+        .expect("farsight bench transport runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let head = stdout
+        .lines()
+        .find(|l| l.starts_with("| size |"))
+        .expect("the table");
+    assert!(head.contains("iceoryx2 raw event ping"), "{head}");
+    let row: Vec<f64> = stdout
+        .lines()
+        .find(|l| l.starts_with("| 64 B |"))
+        .expect("the 64 B row")
+        .split('|')
+        .skip(2)
+        .filter(|c| !c.trim().is_empty())
+        .map(|c| c.split('/').next().unwrap().trim().parse().unwrap())
+        .collect();
+    assert_eq!(row.len(), 6, "{stdout}");
+    assert!(row.iter().all(|&m| m > 0.0), "{row:?}");
+    let cpu = |label: &str| -> f64 {
+        let line = stdout
+            .lines()
+            .skip_while(|l| !l.starts_with("receiver CPU"))
+            .find(|l| l.trim_start().starts_with(label))
+            .unwrap_or_else(|| panic!("no CPU line for {label}: {stdout}"));
+        line.trim()
+            .trim_end_matches('%')
+            .rsplit(' ')
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let (poll, wait, event, event_wait) = (
+        cpu("iceoryx2 (poll)"),
+        cpu("iceoryx2 (WaitSet)"),
+        cpu("iceoryx2 raw event ping"),
+        cpu("iceoryx2 event ping (WaitSet)"),
+    );
+    assert!(wait < 10.0 && event < 10.0 && event_wait < 10.0, "{stdout}");
+    assert!(poll > 3.0 * wait, "{stdout}");
+    assert!(
+        stdout.contains("wake-up over the raw event ping"),
+        "{stdout}"
+    );
+}

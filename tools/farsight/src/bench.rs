@@ -7,6 +7,16 @@
 //! transport; the receive time when the receiver holds the whole message (for
 //! iceoryx2: a reference into shared memory, nothing copied). Both processes
 //! read the same system clock.
+//!
+//! Beside them, the yardstick for waking a sleeping stage (issue 21 item 3):
+//! raw iceoryx2 event ping-pong (a listener blocked in `blocking_wait`, no
+//! WaitSet, no sample; the child answers each ping so they go one at a
+//! time, with the same pause between them), timed from the ping's notify
+//! to the child's wake. Half the round trip would flatter it: the pong
+//! wakes a process that went to sleep microseconds before, the ping one
+//! that slept through the pause, as a stage does between frames. And the
+//! CPU the receiver burned while it waited, which shows the WaitSet
+//! receiver sleeps where the polling one spins.
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
@@ -68,6 +78,12 @@ pub enum Kind {
     IpcPoll,
     /// iceoryx2, receiver sleeps on a WaitSet and is woken by the paired event.
     IpcWait,
+    /// Raw iceoryx2 events, no payload: ping, the child wakes from a
+    /// blocking wait on its listener, notes the time and answers pong
+    /// (lock-step); ping to wake.
+    IpcEvent,
+    /// The same, the child asleep on a WaitSet as every stage is.
+    IpcEventWait,
     /// zenoh peer-to-peer over loopback TCP.
     Zenoh,
     /// A Unix stream socket, the payload copied through the kernel.
@@ -79,6 +95,8 @@ impl Kind {
         match self {
             Kind::IpcPoll => "iceoryx2 (poll)",
             Kind::IpcWait => "iceoryx2 (WaitSet)",
+            Kind::IpcEvent => "iceoryx2 raw event ping",
+            Kind::IpcEventWait => "iceoryx2 event ping (WaitSet)",
             Kind::Zenoh => "zenoh tcp loopback",
             Kind::Unix => "unix socket copy",
         }
@@ -276,13 +294,18 @@ impl Receiver {
         Ok(())
     }
 
-    /// `result <median_ns> <p99_ns> <n>`
-    fn result(mut self) -> Result<(f64, f64, usize)> {
+    /// `result <median_ns> <p99_ns> <n> <cpu_fraction>`
+    fn result(mut self) -> Result<Cell> {
         let l = self.line()?;
         let _ = self.child.wait();
         let parts: Vec<&str> = l.split_whitespace().collect();
         match parts.as_slice() {
-            ["result", m, p, n] => Ok((m.parse()?, p.parse()?, n.parse()?)),
+            ["result", m, p, n, cpu] => Ok(Cell {
+                median_ns: m.parse()?,
+                p99_ns: p.parse()?,
+                received: n.parse()?,
+                receiver_cpu: cpu.parse()?,
+            }),
             _ => bail!("unexpected receiver output {l:?}"),
         }
     }
@@ -294,15 +317,70 @@ fn gap(size: usize) -> Duration {
     Duration::from_micros(2000 + (size / 1000) as u64)
 }
 
-fn send_cell(kind: Kind, size: usize, count: usize) -> Result<(f64, f64, usize)> {
+/// The bus of one cell: its own prefix, so cells never meet.
+fn bench_settings(prefix: &str) -> IpcSettings {
+    IpcSettings {
+        prefix: Some(prefix.to_string()),
+        root: None,
+        queues: None,
+    }
+}
+
+/// One cell of the table: latency, how many arrived, and the share of one
+/// core the receiver used from ready to done.
+#[derive(Debug, Clone, Copy)]
+struct Cell {
+    median_ns: f64,
+    p99_ns: f64,
+    received: usize,
+    receiver_cpu: f64,
+}
+
+/// CPU time this process has used (user + system), seconds.
+fn process_cpu_s() -> f64 {
+    let mut u = std::mem::MaybeUninit::<libc::rusage>::zeroed();
+    // SAFETY: getrusage fills the struct it is given; RUSAGE_SELF is valid.
+    let u = unsafe {
+        libc::getrusage(libc::RUSAGE_SELF, u.as_mut_ptr());
+        u.assume_init()
+    };
+    let t = |v: libc::timeval| v.tv_sec as f64 + v.tv_usec as f64 * 1e-6;
+    t(u.ru_utime) + t(u.ru_stime)
+}
+
+type EventPorts = (
+    iceoryx2::port::notifier::Notifier<iceoryx2::prelude::ipc::Service>,
+    iceoryx2::port::listener::Listener<iceoryx2::prelude::ipc::Service>,
+);
+
+/// One side of a raw ping-pong cell: a notifier on event service
+/// `<tag>/<notify>` and a listener on `<tag>/<listen>`.
+fn event_ports(bus: &Bus, tag: &str, notify: &str, listen: &str) -> Result<EventPorts> {
+    let service = |which: &str| -> Result<_> {
+        let name = iceoryx2::prelude::ServiceName::new(&format!("{tag}/{which}"))
+            .map_err(|e| anyhow::anyhow!("event service name {tag}/{which}: {e:?}"))?;
+        bus.node()
+            .service_builder(&name)
+            .event()
+            .open_or_create()
+            .map_err(|e| anyhow::anyhow!("event service {tag}/{which}: {e:?}"))
+    };
+    let notifier = service(notify)?
+        .notifier_builder()
+        .create()
+        .map_err(|e| anyhow::anyhow!("{notify} notifier: {e:?}"))?;
+    let listener = service(listen)?
+        .listener_builder()
+        .create()
+        .map_err(|e| anyhow::anyhow!("{listen} listener: {e:?}"))?;
+    Ok((notifier, listener))
+}
+
+fn send_cell(kind: Kind, size: usize, count: usize) -> Result<Cell> {
     let tag = format!("bench{}_{}_", std::process::id(), now_ns() % 1_000_000);
     match kind {
         Kind::IpcPoll | Kind::IpcWait => {
-            let settings = IpcSettings {
-                prefix: Some(tag.clone()),
-                root: None,
-                queues: None,
-            };
+            let settings = bench_settings(&tag);
             let bus = Bus::open_with("bench-sender", &settings)?;
             let publisher = bus.slice_publisher(&topic(), size)?;
             let mut rx = Receiver::start(kind, size, count, &tag)?;
@@ -327,6 +405,44 @@ fn send_cell(kind: Kind, size: usize, count: usize) -> Result<(f64, f64, usize)>
             cleanup_shm(&tag);
             r
         }
+        Kind::IpcEvent | Kind::IpcEventWait => {
+            let settings = bench_settings(&tag);
+            let bus = Bus::open_with("bench-pinger", &settings)?;
+            let (notifier, listener) = event_ports(&bus, &tag, "ping", "pong")?;
+            let mut rx = Receiver::start(kind, size, count, &tag)?;
+            rx.wait_ready()?;
+            std::thread::sleep(Duration::from_millis(200));
+            let mut lat = Vec::with_capacity(count);
+            for i in 0..count + 1 {
+                let sent = now_ns();
+                notifier
+                    .notify()
+                    .map_err(|e| anyhow::anyhow!("ping: {e:?}"))?;
+                let n = listener
+                    .timed_wait(|_| {}, Duration::from_secs(5))
+                    .map_err(|e| anyhow::anyhow!("waiting for pong: {e:?}"))?;
+                if n == 0 {
+                    bail!("no pong within 5 s of ping {i}");
+                }
+                let line = rx.line()?;
+                let woke: u64 = line
+                    .strip_prefix("woke ")
+                    .and_then(|t| t.parse().ok())
+                    .with_context(|| format!("ponger said {line:?}, not \"woke <ns>\""))?;
+                // The first ping warms up the connection.
+                if i > 0 {
+                    lat.push(woke.saturating_sub(sent));
+                }
+                std::thread::sleep(gap(size));
+            }
+            let mut r = rx.result()?;
+            r.received = lat.len();
+            (r.median_ns, r.p99_ns) = stats(lat);
+            drop((notifier, listener));
+            drop(bus);
+            cleanup_shm(&tag);
+            Ok(r)
+        }
         Kind::Zenoh => {
             let port = std::net::TcpListener::bind("127.0.0.1:0")?
                 .local_addr()?
@@ -341,9 +457,12 @@ fn send_cell(kind: Kind, size: usize, count: usize) -> Result<(f64, f64, usize)>
             rx.wait_ready()?;
             // Let the subscription propagate to this peer.
             std::thread::sleep(Duration::from_millis(1500));
-            let template = vec![7u8; size.max(8)];
-            for _ in 0..count + 1 {
+            // Send time, then the message's index (the receiver stops at
+            // the last even when an early one was lost in propagation).
+            let template = vec![7u8; size.max(16)];
+            for i in 0..count + 1 {
                 let mut msg = template.clone();
+                msg[8..16].copy_from_slice(&(i as u64).to_le_bytes());
                 msg[..8].copy_from_slice(&now_ns().to_le_bytes());
                 publisher.put(msg)?;
                 std::thread::sleep(gap(size));
@@ -380,7 +499,14 @@ fn cleanup_shm(prefix: &str) {
 }
 
 fn transport(a: TransportArgs) -> Result<()> {
-    let kinds = [Kind::IpcPoll, Kind::IpcWait, Kind::Zenoh, Kind::Unix];
+    let kinds = [
+        Kind::IpcPoll,
+        Kind::IpcWait,
+        Kind::IpcEvent,
+        Kind::IpcEventWait,
+        Kind::Zenoh,
+        Kind::Unix,
+    ];
     let mut table = Vec::new();
     for &size in &a.sizes {
         let mut row = Vec::new();
@@ -405,25 +531,70 @@ fn transport(a: TransportArgs) -> Result<()> {
     println!("\n|---|{}", "---|".repeat(kinds.len()));
     for (size, row) in &table {
         print!("| {} |", human_size(*size));
-        for (m, p, n) in row {
-            let note = if *n < a.count {
-                format!(" ({n} recv)")
+        for c in row {
+            let note = if c.received < a.count {
+                format!(" ({} recv)", c.received)
             } else {
                 String::new()
             };
-            print!(" {:.1} / {:.1}{note} |", m / 1e3, p / 1e3);
+            print!(" {:.1} / {:.1}{note} |", c.median_ns / 1e3, c.p99_ns / 1e3);
         }
         println!();
+    }
+    let col = |k: Kind| kinds.iter().position(|&x| x == k).expect("a column");
+    let (poll, wait, event, event_wait, unix) = (
+        col(Kind::IpcPoll),
+        col(Kind::IpcWait),
+        col(Kind::IpcEvent),
+        col(Kind::IpcEventWait),
+        col(Kind::Unix),
+    );
+    println!("\nreceiver CPU while waiting, share of one core (median over sizes):");
+    for k in kinds {
+        let mut cpu: Vec<f64> = table.iter().map(|(_, r)| r[col(k)].receiver_cpu).collect();
+        cpu.sort_by(f64::total_cmp);
+        println!("  {:<30} {:>5.1}%", k.label(), 100.0 * cpu[cpu.len() / 2]);
+    }
+    println!(
+        "\nwake-up over the raw event ping, median (goal <= 1.5x): the WaitSet's own wake / a stage's receive"
+    );
+    for (size, row) in &table {
+        let raw = row[event].median_ns.max(1.0);
+        println!(
+            "  {:>6}: {:.2}x / {:.2}x",
+            human_size(*size),
+            row[event_wait].median_ns / raw,
+            row[wait].median_ns / raw
+        );
     }
     if let Some((size, row)) = table.last() {
         println!(
             "\nat {}: unix socket copy / iceoryx2 (poll) median = {:.0}x, / iceoryx2 (WaitSet) = {:.0}x",
             human_size(*size),
-            row[3].0 / row[0].0.max(1.0),
-            row[3].0 / row[1].0.max(1.0)
+            row[unix].median_ns / row[poll].median_ns.max(1.0),
+            row[unix].median_ns / row[wait].median_ns.max(1.0)
         );
     }
     Ok(())
+}
+
+/// Sleeps on a WaitSet on `listener` (and a `tick`, so a deadline is
+/// checked), running `step` at each wake until it says done or fails.
+fn on_each_wake(
+    listener: &ipc::InputListener,
+    tick: Option<Duration>,
+    mut step: impl FnMut() -> Result<bool>,
+) -> Result<()> {
+    let mut err = None;
+    ipc::wait_loop(&[listener], tick, |_| match step() {
+        Ok(false) => ControlFlow::Continue(()),
+        Ok(true) => ControlFlow::Break(()),
+        Err(e) => {
+            err = Some(e);
+            ControlFlow::Break(())
+        }
+    })?;
+    err.map_or(Ok(()), Err)
 }
 
 fn receiver(a: ReceiverArgs) -> Result<()> {
@@ -432,21 +603,59 @@ fn receiver(a: ReceiverArgs) -> Result<()> {
         println!("{s}");
         std::io::stdout().flush().ok();
     };
+    // Set when the receiver says ready: the CPU it uses from then on.
+    let mut ready_at = None;
+    let mut out_ready = || {
+        out("ready");
+        ready_at = Some((Instant::now(), process_cpu_s()));
+    };
     match a.kind {
-        Kind::IpcPoll | Kind::IpcWait => {
-            let settings = IpcSettings {
-                prefix: Some(a.endpoint.clone()),
-                root: None,
-                queues: None,
+        Kind::IpcEvent | Kind::IpcEventWait => {
+            let settings = bench_settings(&a.endpoint);
+            let bus = Bus::open_with("bench-ponger", &settings)?;
+            let (notifier, listener) = event_ports(&bus, &a.endpoint, "pong", "ping")?;
+            out_ready();
+            // When the ping woke this process; the pinger pairs it with when
+            // it notified (lock-step: one ping at a time).
+            let pong = || -> Result<()> {
+                out(&format!("woke {}", now_ns()));
+                notifier
+                    .notify()
+                    .map(drop)
+                    .map_err(|e| anyhow::anyhow!("pong: {e:?}"))
             };
+            if a.kind == Kind::IpcEvent {
+                for _ in 0..a.count + 1 {
+                    listener
+                        .blocking_wait(|_| {})
+                        .map_err(|e| anyhow::anyhow!("waiting for ping: {e:?}"))?;
+                    pong()?;
+                }
+            } else {
+                let mut pings = 0;
+                on_each_wake(&listener, None, || {
+                    pong()?;
+                    pings += 1;
+                    Ok(pings > a.count)
+                })?;
+            }
+            // The pinger holds the latencies; this side reports its CPU.
+            lat.push(0);
+        }
+        Kind::IpcPoll | Kind::IpcWait => {
+            let settings = bench_settings(&a.endpoint);
             let bus = Bus::open_with("bench-receiver", &settings)?;
             let sub = bus.slice_subscriber(&topic())?;
             // The history of one may replay the last sample: skip anything already there.
             while sub.latest()?.is_some() {}
-            out("ready");
+            out_ready();
             let deadline = Instant::now() + Duration::from_secs(60);
             // The first message warms up the connection and is not counted.
+            // The sender's last is sequence count + 1: a receiver that was
+            // off the CPU when some arrived (latest skips to the newest)
+            // stops there rather than waiting for the deadline.
             let mut first = true;
+            let last_seen = std::cell::Cell::new(false);
             let mut take = |lat: &mut Vec<u64>| -> Result<bool> {
                 if let Some(s) = sub.latest()? {
                     let t = now_ns();
@@ -454,32 +663,27 @@ fn receiver(a: ReceiverArgs) -> Result<()> {
                         lat.push(t.saturating_sub(s.header().stamp.capture_time_ns));
                     }
                     first = false;
+                    if s.header().stamp.frame_seq > a.count as u64 {
+                        last_seen.set(true);
+                    }
                     return Ok(true);
                 }
                 Ok(false)
             };
+            let done = |lat: &Vec<u64>| {
+                lat.len() >= a.count || last_seen.get() || Instant::now() > deadline
+            };
             if a.kind == Kind::IpcPoll {
-                while lat.len() < a.count && Instant::now() < deadline {
+                while !done(&lat) {
                     if !take(&mut lat)? {
                         std::hint::spin_loop();
                     }
                 }
             } else {
-                let mut err = None;
-                ipc::wait_loop(&[sub.listener()], Some(Duration::from_millis(100)), |_| {
-                    if let Err(e) = take(&mut lat) {
-                        err = Some(e);
-                        return ControlFlow::Break(());
-                    }
-                    if lat.len() >= a.count || Instant::now() > deadline {
-                        ControlFlow::Break(())
-                    } else {
-                        ControlFlow::Continue(())
-                    }
+                on_each_wake(sub.listener(), Some(Duration::from_millis(100)), || {
+                    take(&mut lat)?;
+                    Ok(done(&lat))
                 })?;
-                if let Some(e) = err {
-                    return Err(e);
-                }
             }
         }
         Kind::Zenoh => {
@@ -488,23 +692,30 @@ fn receiver(a: ReceiverArgs) -> Result<()> {
                 "bench",
             )?;
             let sub = net.bytes_subscriber("bench/transport")?;
-            out("ready");
+            out_ready();
             let mut first = true;
             let deadline = Instant::now() + Duration::from_secs(60);
             while lat.len() < a.count && Instant::now() < deadline {
                 if let Some(msg) = sub.recv_timeout(Duration::from_millis(200))? {
                     let t = now_ns();
+                    if msg.len() < 16 {
+                        bail!("a {} B message, expected at least 16", msg.len());
+                    }
                     let sent = u64::from_le_bytes(msg[..8].try_into()?);
+                    let index = u64::from_le_bytes(msg[8..16].try_into()?);
                     if !first {
                         lat.push(t.saturating_sub(sent));
                     }
                     first = false;
+                    if index >= a.count as u64 {
+                        break;
+                    }
                 }
             }
         }
         Kind::Unix => {
             let mut stream = UnixStream::connect(&a.endpoint)?;
-            out("ready");
+            out_ready();
             let mut buf = vec![0u8; a.size.max(8)];
             for i in 0..a.count + 1 {
                 stream.read_exact(&mut buf)?;
@@ -520,6 +731,9 @@ fn receiver(a: ReceiverArgs) -> Result<()> {
     }
     let n = lat.len();
     let (m, p) = stats(lat);
-    out(&format!("result {m} {p} {n}"));
+    let cpu = ready_at.map_or(0.0, |(t0, c0)| {
+        (process_cpu_s() - c0) / t0.elapsed().as_secs_f64().max(1e-9)
+    });
+    out(&format!("result {m} {p} {n} {cpu}"));
     Ok(())
 }
