@@ -13,7 +13,7 @@
 //! layout = "nchw"                    # or "nhwc"
 //! width = 640
 //! height = 360
-//! resize = "bilinear"                # or "nearest"; the whole frame is resized (stretched)
+//! resize = "bilinear"                # antialiased as PIL's BILINEAR, or "nearest"; the whole frame is resized (stretched)
 //! color = "rgb"                      # or "bgr"
 //! scale = 0.00392156862745098        # value = (pixel * scale - mean) / std
 //! mean = [0.0, 0.0, 0.0]

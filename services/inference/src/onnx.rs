@@ -310,9 +310,9 @@ impl OnnxModel {
         post: impl FnOnce(&[(&OutputSpec, Vec<usize>, &[f32])]) -> R,
     ) -> Result<R, InferError> {
         let t0 = Instant::now();
-        let pre = self.pre.get_or_insert_with(|| {
-            Preprocessor::new(&self.config.input, header.width, header.height)
-        });
+        let pre = self
+            .pre
+            .get_or_insert_with(|| Preprocessor::new(&self.config.input));
         pre.run(header, frame, &mut self.input)?;
         let t1 = Instant::now();
         let shape = self.config.input_shape().map(|d| d as usize);

@@ -214,7 +214,7 @@ pub fn model_input_resizer(width: u32, height: u32) -> Preprocessor {
         mean: [0.0; 3],
         std: [1.0; 3],
     };
-    Preprocessor::new(&spec, width, height)
+    Preprocessor::new(&spec)
 }
 
 /// The frame resized exactly as the inference stage resizes it for a model
