@@ -12,6 +12,7 @@
 //! the wall clock (robot and laptop clocks must agree, e.g. by NTP/PTP); a
 //! recording or simulation's clock shows as "-".
 
+use crate::memory::ProcessMemory;
 use anyhow::{bail, Context, Result};
 use farsight_interfaces::clock::{Clock, WallClock};
 use farsight_interfaces::msg::*;
@@ -80,6 +81,9 @@ pub struct GraphView {
     /// a large value, or a negative one, means the clocks disagree, and
     /// staleness judged on capture times across machines is then wrong.
     pub clock_offset_ms: BTreeMap<String, f64>,
+    /// Per stage whose process runs on this machine: its private memory
+    /// and the shared memory it maps ([`crate::memory`]).
+    pub memory: BTreeMap<String, ProcessMemory>,
 }
 
 /// Capture times before this are not wall-clock (a replay or simulation's clock).
@@ -114,12 +118,32 @@ impl GraphView {
         }
     }
 
+    /// Reads the memory of every stage whose process runs here.
+    pub fn read_local_memory(&mut self) {
+        for (name, h) in &self.health {
+            if crate::memory::is_local_farsight_process(h.pid) {
+                if let Some(m) = crate::memory::of_pid(h.pid) {
+                    self.memory.insert(name.clone(), m);
+                }
+            }
+        }
+    }
+
     /// The one-screen report.
     pub fn render(&self) -> String {
         let mut s = String::from("stages (alive: health heard)\n");
         s += &format!(
-            "  {:<20} {:<9} {:>8} {:>8} {:>7} {:>7} {:>10} {:>9}  reason\n",
-            "stage", "state", "in", "out", "dropped", "skipped", "latency ms", "clock ms"
+            "  {:<20} {:<9} {:>8} {:>8} {:>7} {:>7} {:>10} {:>9} {:>10} {:>8}  reason\n",
+            "stage",
+            "state",
+            "in",
+            "out",
+            "dropped",
+            "skipped",
+            "latency ms",
+            "clock ms",
+            "private MB",
+            "shm MB"
         );
         for (name, h) in &self.health {
             // A stage on a replay's or simulation's clock measures its
@@ -135,8 +159,18 @@ impl GraphView {
                 .clock_offset_ms
                 .get(name)
                 .map_or_else(|| "-".to_string(), |ms| format!("{ms:+.1}"));
+            // Memory: only for a stage running on this machine ("-" else).
+            let (private, shm) = self.memory.get(name).map_or_else(
+                || ("-".to_string(), "-".to_string()),
+                |m| {
+                    (
+                        format!("{:.1}", crate::memory::mb(m.private_bytes)),
+                        format!("{:.1}", crate::memory::mb(m.shared_memory_bytes)),
+                    )
+                },
+            );
             s += &format!(
-                "  {:<20} {:<9} {:>8} {:>8} {:>7} {:>7} {:>10} {:>9}  {}\n",
+                "  {:<20} {:<9} {:>8} {:>8} {:>7} {:>7} {:>10} {:>9} {:>10} {:>8}  {}\n",
                 name,
                 h.state.name().unwrap_or("?"),
                 h.messages_in,
@@ -145,6 +179,8 @@ impl GraphView {
                 h.skipped,
                 latency,
                 clock,
+                private,
+                shm,
                 h.reason.as_str()
             );
         }
@@ -206,6 +242,7 @@ pub fn run(a: InspectArgs) -> Result<()> {
                     a.seconds
                 );
             }
+            view.read_local_memory();
             print!("{}", view.render());
         }
         Some(InspectCommand::Echo { topic, count }) => {
@@ -541,5 +578,43 @@ mod tests {
         // Garbage on a topic is ignored, not counted.
         v.observe("state/pose", b"junk", t0);
         assert_eq!(v.topics["state/pose"].count, 11);
+    }
+
+    #[test]
+    fn a_stage_on_this_machine_shows_its_memory_and_a_remote_one_a_dash() {
+        let mut v = GraphView::default();
+        for (stage, pid) in [("here", std::process::id()), ("robot", u32::MAX)] {
+            let mut h = StageHealth {
+                pid,
+                ..Default::default()
+            };
+            h.stage = farsight_interfaces::fixed::FixedStr::new(stage).unwrap();
+            v.observe(
+                &format!("health/{stage}"),
+                &wire::encode_message(&h).unwrap(),
+                1,
+            );
+        }
+        v.read_local_memory();
+        let here = v.memory["here"];
+        assert!(here.private_bytes > 1 << 20, "{here}");
+        assert!(!v.memory.contains_key("robot"));
+        let text = v.render();
+        let row = |stage: &str| {
+            text.lines()
+                .find(|l| l.trim_start().starts_with(stage))
+                .unwrap_or_else(|| panic!("{text}"))
+                .to_string()
+        };
+        let shown = format!("{:.1}", crate::memory::mb(here.private_bytes));
+        assert!(row("here").contains(&shown), "{text}");
+        assert!(
+            row("robot")
+                .split_whitespace()
+                .filter(|w| *w == "-")
+                .count()
+                >= 3,
+            "{text}"
+        );
     }
 }

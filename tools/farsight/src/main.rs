@@ -36,6 +36,7 @@ mod hip_library;
 mod infer;
 mod inspect;
 mod lockstep;
+mod memory;
 mod probe;
 mod recording;
 mod run;
