@@ -57,6 +57,9 @@ pub enum BenchCommand {
     FitamMerge(crate::bench_record::MergeArgs),
     /// What `farsight record` sustains writing 1280x720 RGB frames to disk.
     Recorder(crate::bench_recorder::RecorderArgs),
+    /// The ORFD POVNav graph as processes: capture-to-command and per-hop
+    /// latency, median and p99, beside inference alone; each stage's memory.
+    E2e(crate::bench_e2e::E2eArgs),
     /// (internal) the receiving side of one cell of the transport benchmark.
     #[command(hide = true)]
     TransportReceiver(ReceiverArgs),
@@ -220,6 +223,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::FitamMerge(a) => crate::bench_fitam::run_merge(a),
         BenchCommand::NavMerge(a) => crate::bench_record::run_merge(a),
         BenchCommand::Recorder(a) => crate::bench_recorder::run(a),
+        BenchCommand::E2e(a) => crate::bench_e2e::run(a),
         BenchCommand::Planning(a) => crate::bench_planning::run(a),
         BenchCommand::Navigation(a) => crate::bench_navigation::run(a),
         BenchCommand::Transport(a) => transport(a),
@@ -317,8 +321,8 @@ fn gap(size: usize) -> Duration {
     Duration::from_micros(2000 + (size / 1000) as u64)
 }
 
-/// The bus of one cell: its own prefix, so cells never meet.
-fn bench_settings(prefix: &str) -> IpcSettings {
+/// A bus of its own prefix, so benchmark runs never meet.
+pub(crate) fn bench_settings(prefix: &str) -> IpcSettings {
     IpcSettings {
         prefix: Some(prefix.to_string()),
         root: None,
@@ -578,15 +582,15 @@ fn transport(a: TransportArgs) -> Result<()> {
     Ok(())
 }
 
-/// Sleeps on a WaitSet on `listener` (and a `tick`, so a deadline is
+/// Sleeps on a WaitSet on `listeners` (and a `tick`, so a deadline is
 /// checked), running `step` at each wake until it says done or fails.
-fn on_each_wake(
-    listener: &ipc::InputListener,
+pub(crate) fn on_each_wake(
+    listeners: &[&ipc::InputListener],
     tick: Option<Duration>,
     mut step: impl FnMut() -> Result<bool>,
 ) -> Result<()> {
     let mut err = None;
-    ipc::wait_loop(&[listener], tick, |_| match step() {
+    ipc::wait_loop(listeners, tick, |_| match step() {
         Ok(false) => ControlFlow::Continue(()),
         Ok(true) => ControlFlow::Break(()),
         Err(e) => {
@@ -633,7 +637,7 @@ fn receiver(a: ReceiverArgs) -> Result<()> {
                 }
             } else {
                 let mut pings = 0;
-                on_each_wake(&listener, None, || {
+                on_each_wake(&[&listener], None, || {
                     pong()?;
                     pings += 1;
                     Ok(pings > a.count)
@@ -680,7 +684,7 @@ fn receiver(a: ReceiverArgs) -> Result<()> {
                     }
                 }
             } else {
-                on_each_wake(sub.listener(), Some(Duration::from_millis(100)), || {
+                on_each_wake(&[sub.listener()], Some(Duration::from_millis(100)), || {
                     take(&mut lat)?;
                     Ok(done(&lat))
                 })?;

@@ -18,30 +18,42 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-pub fn run(a: InferenceArgs) -> Result<()> {
-    let config = ModelConfig::load(&a.model_config)?;
+/// The inference stage's phases on a folder of PNG frames, outside any
+/// process graph: median pre-processing, inference and post-processing
+/// (ms) over `runs` frames after 3 warm-up runs, with the frame size.
+pub struct PhaseMedians {
+    pub pre_ms: f64,
+    pub inference_ms: f64,
+    pub post_ms: f64,
+    pub frame: (u32, u32),
+}
+
+pub fn phase_medians(
+    config: &ModelConfig,
+    frames_dir: &std::path::Path,
+    runs: usize,
+) -> Result<PhaseMedians> {
     let table = config
         .class_table_path()
         .map(|p| ClassTableFile::open(&p))
         .transpose()?;
-    let mut backend = Backend::Onnx(Box::new(OnnxModel::load(&config)?));
-    let mut files: Vec<_> = std::fs::read_dir(&a.frames)
-        .with_context(|| format!("reading {}", a.frames.display()))?
+    let mut backend = Backend::Onnx(Box::new(OnnxModel::load(config)?));
+    let mut files: Vec<_> = std::fs::read_dir(frames_dir)
+        .with_context(|| format!("reading {}", frames_dir.display()))?
         .flatten()
         .map(|e| e.path())
         .filter(|p| p.extension().is_some_and(|e| e == "png"))
         .collect();
     files.sort();
     if files.is_empty() {
-        bail!("no PNG frames in {}", a.frames.display());
+        bail!("no PNG frames in {}", frames_dir.display());
     }
     let frames: Vec<_> = files
         .iter()
         .map(|f| farsight_imaging::decode_png(&std::fs::read(f)?).map_err(anyhow::Error::from))
         .collect::<Result<_>>()?;
-    let (fw, fh) = (frames[0].0.width, frames[0].0.height);
     let (mut pre, mut inf, mut post) = (vec![], vec![], vec![]);
-    for i in 0..a.runs + 3 {
+    for i in 0..runs.max(1) + 3 {
         let (h, f) = &frames[i % frames.len()];
         let mut t = Timings::default();
         backend.run(h, f, table.as_ref().map(|t| t.table()), &mut t)?;
@@ -51,7 +63,19 @@ pub fn run(a: InferenceArgs) -> Result<()> {
             post.push(t.postprocess_s * 1e3);
         }
     }
-    let (p, i, q) = (median(pre), median(inf), median(post));
+    Ok(PhaseMedians {
+        pre_ms: median(pre),
+        inference_ms: median(inf),
+        post_ms: median(post),
+        frame: (frames[0].0.width, frames[0].0.height),
+    })
+}
+
+pub fn run(a: InferenceArgs) -> Result<()> {
+    let config = ModelConfig::load(&a.model_config)?;
+    let m = phase_medians(&config, &a.frames, a.runs)?;
+    let (fw, fh) = m.frame;
+    let (p, i, q) = (m.pre_ms, m.inference_ms, m.post_ms);
     println!(
         "inference stage, {} on {fw}x{fh} frames -> {}x{} input, median of {} runs (one run):\n",
         config

@@ -151,7 +151,10 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let out = std::fs::canonicalize(&out)?;
     let orfd = OrfdGraph::prepare(&a, &out)?;
     let frames = orfd.frames.clone();
-    let prefix = format!("demo{}_", std::process::id());
+    // Its own shared-memory namespace, or the caller's (`farsight bench
+    // e2e` taps the graph from outside).
+    let prefix = std::env::var("FARSIGHT_IPC_PREFIX")
+        .unwrap_or_else(|_| format!("demo{}_", std::process::id()));
 
     println!("farsight demo: camera-ingest -> inference -> subgoal-selection -> velocity-servoing, watched over zenoh");
     println!("  graph: {}", orfd.path.display());

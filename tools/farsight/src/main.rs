@@ -18,6 +18,7 @@
 //! ```
 
 mod bench;
+mod bench_e2e;
 mod bench_fitam;
 mod bench_inference;
 mod bench_nav;
