@@ -8,7 +8,8 @@
 //! stage's private and shared memory ([`crate::memory`]).
 //!
 //! The tap is one more subscriber asleep on a WaitSet on every topic of
-//! the path; it reads the clock as it wakes, before copying anything out.
+//! the path; it reads the clock as it wakes and each message's stamp in
+//! shared memory, copying nothing out.
 //! A frame is counted on a topic the first time a message carrying its
 //! sequence number arrives there: the servo republishes its last command
 //! at its own rate, and only the first one is the frame's.
@@ -17,10 +18,10 @@ use crate::memory::{self, ProcessMemory};
 use anyhow::{bail, Context, Result};
 use farsight_inference::model_config::ModelConfig;
 use farsight_interfaces::clock::{Clock, WallClock};
-use farsight_interfaces::msg::StageHealth;
-use farsight_interfaces::transport::any::AnySubscriber;
-use farsight_interfaces::transport::ipc::{self, Bus};
-use farsight_interfaces::transport::wire;
+use farsight_interfaces::msg::Stamp;
+use farsight_interfaces::topics;
+use farsight_interfaces::transport::ipc::Bus;
+use farsight_interfaces::transport::Stamped;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
@@ -41,6 +42,8 @@ pub struct E2eArgs {
     #[arg(long, default_value = "out/bench-e2e")]
     pub out: PathBuf,
 }
+
+const CAMERA: &str = "front";
 
 /// The path of a frame, in order, with the stage that produced each topic.
 const PATH: [(&str, &str); 4] = [
@@ -131,15 +134,39 @@ pub fn run(a: E2eArgs) -> Result<()> {
 /// Taps the path until `seconds` of frames have passed through it.
 fn measure(a: &E2eArgs, prefix: &str) -> Result<(Arrivals, BTreeMap<String, ProcessMemory>, f64)> {
     let bus = Bus::open_with("bench-e2e", &crate::bench::bench_settings(prefix))?;
-    let subs: Vec<AnySubscriber> = PATH
+    // Typed ports, read in place: the tap copies no frame out of shared
+    // memory, so it takes no CPU from the stages it times.
+    let image = bus.slice_subscriber(&topics::camera_image(CAMERA))?;
+    let navigability = bus.slice_subscriber(&topics::navigability(CAMERA))?;
+    let subgoal = bus.subscriber(&topics::subgoal())?;
+    let command = bus.subscriber(&topics::velocity_command())?;
+    debug_assert_eq!(
+        [
+            image.topic(),
+            navigability.topic(),
+            subgoal.topic(),
+            command.topic()
+        ],
+        PATH.map(|(t, _)| t)
+    );
+    let newest_stamps = || -> Result<[Option<Stamp>; 4]> {
+        Ok([
+            image.latest()?.map(|s| s.header().stamp),
+            navigability.latest()?.map(|s| s.header().stamp),
+            subgoal.latest()?.map(|m| m.stamp()),
+            command.latest()?.map(|m| m.stamp()),
+        ])
+    };
+    let health: Vec<_> = PATH
         .iter()
-        .map(|(t, _)| AnySubscriber::open(&bus, t))
+        .map(|(_, s)| bus.subscriber(&topics::health(s)))
         .collect::<Result<_, _>>()?;
-    let health: Vec<AnySubscriber> = PATH
-        .iter()
-        .map(|(_, s)| AnySubscriber::open(&bus, &format!("health/{s}")))
-        .collect::<Result<_, _>>()?;
-    let listeners: Vec<&ipc::InputListener> = subs.iter().map(|s| s.listener()).collect();
+    let listeners = [
+        image.listener(),
+        navigability.listener(),
+        subgoal.listener(),
+        command.listener(),
+    ];
     let mut arrivals: Arrivals = vec![BTreeMap::new(); PATH.len()];
     let mut pids: BTreeMap<String, u32> = BTreeMap::new();
     let started = Instant::now();
@@ -148,8 +175,8 @@ fn measure(a: &E2eArgs, prefix: &str) -> Result<(Arrivals, BTreeMap<String, Proc
     let mut newest_frame = 0u64;
     crate::bench::on_each_wake(&listeners, Some(Duration::from_millis(100)), || {
         let now_ns = WallClock.now_ns();
-        for (k, sub) in subs.iter().enumerate() {
-            for (stamp, _) in sub.take_all_wire()? {
+        for (k, stamp) in newest_stamps()?.into_iter().enumerate() {
+            if let Some(stamp) = stamp {
                 let ms = now_ns.saturating_sub(stamp.capture_time_ns) as f64 * 1e-6;
                 if k == 0 {
                     newest_frame = newest_frame.max(stamp.frame_seq);
@@ -166,8 +193,7 @@ fn measure(a: &E2eArgs, prefix: &str) -> Result<(Arrivals, BTreeMap<String, Proc
             }
         }
         for h in &health {
-            if let Some((_, bytes)) = h.take_wire()? {
-                let h: StageHealth = wire::decode_message(&bytes)?;
+            if let Some(h) = h.latest()? {
                 pids.insert(h.stage.as_str().to_string(), h.pid);
             }
         }
