@@ -445,6 +445,10 @@ pub struct DStarLite {
     /// which are (so each is updated once).
     to_update: Vec<usize>,
     dirty: Vec<bool>,
+    /// No search since the planner was made or retargeted: every g is
+    /// infinite, so a cost change moves no rhs but the goal's (always 0)
+    /// and [`Self::set_costs`] only writes the grid.
+    unsearched: bool,
     /// Vertices expanded over the planner's life (to show the repair is cheap).
     pub expanded: usize,
 }
@@ -489,6 +493,7 @@ impl DStarLite {
             to_update: Vec::new(),
             dirty: vec![false; n],
             expanded: 0,
+            unsearched: true,
         };
         let gi = p.idx(goal);
         p.rhs[gi] = 0.0;
@@ -573,6 +578,7 @@ impl DStarLite {
     /// Runs the search until the start's cost is settled; returns it (`None`
     /// if the goal cannot be reached).
     pub fn compute(&mut self) -> Option<f64> {
+        self.unsearched = false;
         let (si, goal) = (self.idx(self.start), self.goal_index());
         while let Some((k_old, ui)) = self.top() {
             if k_old >= self.key(si) && self.rhs[si] == self.g[si] {
@@ -626,6 +632,28 @@ impl DStarLite {
         self.start = start;
     }
 
+    /// The goal is now `goal`. Every g and rhs measured the way to the old
+    /// goal, so the search starts over, but on the grid as it is: where a
+    /// new planner allocates and fills its arrays and is handed every cost
+    /// again (a guide moves the goal every frame), this only resets the
+    /// search's values.
+    pub fn retarget(&mut self, goal: (usize, usize)) {
+        self.g.fill(f64::INFINITY);
+        self.rhs.fill(f64::INFINITY);
+        for &(_, v) in &self.open.heap {
+            self.open.place[v as usize] = VertexQueue::ABSENT;
+        }
+        self.open.heap.clear();
+        self.km = 0.0;
+        self.last_start = self.start;
+        self.goal = goal;
+        self.unsearched = true;
+        let gi = self.idx(goal);
+        self.rhs[gi] = 0.0;
+        let k = self.key(gi);
+        self.open.set(gi, k);
+    }
+
     /// Cell `(x, y)` now costs `cost_s_per_m`. The edges into it change,
     /// and (when it turns blocked or free) the diagonal edges past its
     /// corners; every one of them leaves one of its eight neighbours, so
@@ -655,6 +683,9 @@ impl DStarLite {
             }
             changed += 1;
             self.grid.set(x, y, cost_s_per_m);
+            if self.unsearched {
+                continue;
+            }
             let c = self.idx((x, y));
             let a = self.grid.around(c);
             for i in a.iter().map(|(_, i)| i).chain([c]) {
@@ -808,6 +839,77 @@ mod tests {
                 assert_eq!(one.path(), all.path());
                 assert_eq!((&one.g, &one.rhs, one.km), (&all.g, &all.rhs, all.km));
                 assert_eq!(one.open.heap.len(), all.open.heap.len());
+            }
+        }
+    }
+
+    #[test]
+    fn a_retargeted_planner_plans_as_a_new_one_on_the_same_grid() {
+        let mut rng = Lcg(23);
+        for trial in 0..20 {
+            let (w, h) = (30, 22);
+            let mut grid = random_grid(&mut rng, w, h);
+            let start = (1, 1);
+            grid.set(start.0, start.1, 1.0);
+            let mut d = DStarLite::new(grid.clone(), start, (28, 20), 0.2);
+            d.compute();
+            // The robot moves, cells change, the search repairs.
+            let moved = (3, 2);
+            grid.set(moved.0, moved.1, 1.0);
+            d.move_start(moved);
+            d.set_cost(moved.0, moved.1, 1.0);
+            for _ in 0..30 {
+                let (x, y) = (
+                    (rng.next() * w as f64) as usize,
+                    (rng.next() * h as f64) as usize,
+                );
+                if (x, y) != moved {
+                    grid.set(x, y, 0.7);
+                    d.set_cost(x, y, 0.7);
+                }
+            }
+            d.compute();
+            // A new goal on the same grid, and more changes before the search.
+            let goal = (5 + trial % 20, 18);
+            grid.set(goal.0, goal.1, 1.0);
+            d.retarget(goal);
+            let mut late = vec![(goal.0, goal.1, 1.0)];
+            for _ in 0..30 {
+                let (x, y) = (
+                    (rng.next() * w as f64) as usize,
+                    (rng.next() * h as f64) as usize,
+                );
+                if (x, y) != moved && (x, y) != goal {
+                    late.push((x, y, f32::INFINITY));
+                    grid.set(x, y, f32::INFINITY);
+                }
+            }
+            d.set_costs(late);
+            let mut fresh = DStarLite::new(grid.clone(), moved, goal, 0.2);
+            assert_eq!(d.compute(), fresh.compute(), "trial {trial}");
+            assert_eq!(d.path(), fresh.path(), "trial {trial}");
+            assert_eq!(d.grid(), fresh.grid());
+            assert!(
+                d.g == fresh.g && d.rhs == fresh.rhs,
+                "trial {trial}: the same search"
+            );
+            assert_eq!(d.open.heap.len(), fresh.open.heap.len(), "trial {trial}");
+            let want = astar(&grid, moved, goal, 0.2).map(|(_, c)| c);
+            match (d.compute(), want) {
+                (Some(a), Some(b)) => assert!((a - b).abs() < 1e-6, "trial {trial}: {a} vs A* {b}"),
+                (a, b) => assert_eq!(a, b, "trial {trial}"),
+            }
+            // And it keeps repairing as any planner does.
+            let p = d.path();
+            if p.len() > 3 {
+                d.move_start(p[2]);
+                d.set_cost(p[p.len() / 2].0, p[p.len() / 2].1, f32::INFINITY);
+                grid.set(p[p.len() / 2].0, p[p.len() / 2].1, f32::INFINITY);
+                let want = astar(&grid, p[2], goal, 0.2).map(|(_, c)| c);
+                match (d.compute(), want) {
+                    (Some(a), Some(b)) => assert!((a - b).abs() < 1e-6, "trial {trial}"),
+                    (a, b) => assert_eq!(a, b, "trial {trial}"),
+                }
             }
         }
     }

@@ -134,6 +134,9 @@ pub struct WorldPlanner {
     /// World coordinates of the centre of cell (0, 0).
     origin_m: [f64; 2],
     resolution_m: f64,
+    /// Room kept round the start and the goal; [`Self::retarget`] keeps
+    /// the grid while both stay half of it inside.
+    margin_m: f64,
     goal_m: [f64; 2],
     dstar: DStarLite,
     /// Costs as the costmap gave them, before inflation.
@@ -205,6 +208,7 @@ impl WorldPlanner {
         Self {
             origin_m,
             resolution_m: r,
+            margin_m: cfg.margin_m,
             goal_m,
             dstar,
             base: vec![cfg.unknown_cost_s_per_m; w * h],
@@ -224,6 +228,30 @@ impl WorldPlanner {
 
     pub fn goal_m(&self) -> [f64; 2] {
         self.goal_m
+    }
+
+    /// Moves the goal to `goal_m` on this grid, if the robot at `robot_m`
+    /// and the goal both stay at least half the margin inside it (room to
+    /// plan round what lies between); `false` when a new grid is needed.
+    /// The grid keeps every cost it holds (with world memory, everything
+    /// seen so far); only the search starts over. A guide moves the goal
+    /// every frame: building a grid each time cost a fresh allocation and
+    /// every costmap cell again, and forgot what the robot had seen.
+    pub fn retarget(&mut self, robot_m: [f64; 2], goal_m: [f64; 2]) -> bool {
+        let g = self.dstar.grid();
+        let room = (self.margin_m / 2.0 / self.resolution_m).floor() as usize;
+        let inside = |p: [f64; 2]| {
+            self.cell(p).is_some_and(|(x, y)| {
+                x >= room && y >= room && x + room < g.width && y + room < g.height
+            })
+        };
+        if !inside(robot_m) || !inside(goal_m) {
+            return false;
+        }
+        let goal = self.cell(goal_m).expect("inside the grid");
+        self.goal_m = goal_m;
+        self.dstar.retarget(goal);
+        true
     }
 
     /// Whether world point `p_m` is on the planning grid.
@@ -486,6 +514,56 @@ mod tests {
             p.plan([500.0, 0.0]),
             Err(PlanError::OutsideGrid(500.0, 0.0))
         );
+    }
+
+    #[test]
+    fn a_retargeted_goal_keeps_the_grid_and_the_wall_it_remembers() {
+        let cfg = WorldPlannerConfig {
+            margin_m: 10.0,
+            inflation_radius_m: 0.0,
+            ..Default::default()
+        };
+        // The grid spans x -10..=30, y -10..=10; a lethal wall x = 10,
+        // y in -5..=5, seen once.
+        let mut p = WorldPlanner::new([0.0, 0.0], [20.0, 0.0], &cfg);
+        let header = CostmapHeader {
+            stamp: Stamp::default(),
+            layer: CostmapLayer::FUSED,
+            width: 1,
+            height: 11,
+            resolution_m: 1.0,
+            x_min_m: 9.5,
+            y_max_m: 5.0,
+        };
+        let wall = vec![
+            CostCell {
+                cost_s_per_m: f32::INFINITY,
+                variance: 0.0,
+            };
+            11
+        ];
+        p.apply_costmap(&header, &wall);
+        p.plan([0.0, 0.0]).unwrap();
+        // The goal moves within the grid: the wall still bends the path to it.
+        assert!(p.retarget([0.0, 0.0], [20.0, 3.0]));
+        assert_eq!(p.goal_m(), [20.0, 3.0]);
+        let (around, cost) = p.plan([0.0, 0.0]).unwrap();
+        assert_eq!(around.last(), Some(&[20.0, 3.0]));
+        assert!(
+            around.iter().all(|q| q[0] != 10.0 || q[1].abs() > 5.0),
+            "{around:?}"
+        );
+        let fresh = WorldPlanner::new([0.0, 0.0], [20.0, 3.0], &cfg).plan([0.0, 0.0]);
+        assert!(
+            cost > fresh.unwrap().1 + 1.0,
+            "the open grid's path is shorter"
+        );
+        // Within half the margin (5 m) of an edge, or off the grid: no.
+        assert!(!p.retarget([0.0, 0.0], [27.0, 0.0]));
+        assert!(!p.retarget([0.0, 0.0], [20.0, 40.0]));
+        assert!(!p.retarget([-8.0, 0.0], [20.0, 0.0]));
+        assert_eq!(p.goal_m(), [20.0, 3.0], "a refused goal changes nothing");
+        assert!(p.retarget([-5.0, 0.0], [25.0, 5.0]));
     }
 
     #[test]

@@ -848,7 +848,14 @@ impl MapPlan {
             // A robot that left the grid (relocalised, carried, a
             // simulator started over) gets a grid around where it is.
             let left_grid = pl.as_ref().is_some_and(|pl| !pl.contains(robot));
-            if new_goal || left_grid {
+            // A goal that moved on the grid keeps the grid (and what it
+            // remembers); the search starts over.
+            let retargeted =
+                new_goal && !left_grid && pl.as_mut().is_some_and(|pl| pl.retarget(robot, goal));
+            if retargeted {
+                self.requested_goal_m = Some(goal);
+                self.dirty = true;
+            } else if new_goal || left_grid {
                 let why = if new_goal {
                     "new goal"
                 } else {
