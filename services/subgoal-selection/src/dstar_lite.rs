@@ -538,6 +538,44 @@ impl DStarLite {
 
     /// rhs(u) = min over successors s of c(u, s) + g(s).
     fn best_successor(&self, u: usize) -> f64 {
+        let grid = &self.grid;
+        let w = grid.width;
+        let (x, y) = self.cell(u);
+        if x > 0 && y > 0 && x + 1 < w && y + 1 < grid.height {
+            // An interior cell, unrolled: the 3x3 block read once, each
+            // neighbour's cost and g once (as `around` + `step_cost_around`
+            // compute them, to the bit). Updating a far-field frame's
+            // vertices is mostly this.
+            let (c, g, r) = (&grid.costs, &self.g, grid.resolution_m);
+            let via = |j: usize, diagonal: bool| {
+                let cj = c[j];
+                if CostGrid::blocked(cj) {
+                    f64::INFINITY
+                } else {
+                    cj as f64 * r * if diagonal { SQRT2 } else { 1.0 } + g[j]
+                }
+            };
+            let (east, west, south, north) = (u + 1, u - 1, u + w, u - w);
+            let mut best = via(east, false)
+                .min(via(west, false))
+                .min(via(south, false))
+                .min(via(north, false));
+            let free = |j: usize| !CostGrid::blocked(c[j]);
+            let (fe, fw, fs, fn_) = (free(east), free(west), free(south), free(north));
+            if fe && fs {
+                best = best.min(via(south + 1, true));
+            }
+            if fe && fn_ {
+                best = best.min(via(north + 1, true));
+            }
+            if fw && fs {
+                best = best.min(via(south - 1, true));
+            }
+            if fw && fn_ {
+                best = best.min(via(north - 1, true));
+            }
+            return best;
+        }
         let a = self.grid.around(u);
         a.iter()
             .map(|(k, s)| self.grid.step_cost_around(&a, k, s) + self.g[s])
