@@ -725,12 +725,32 @@ impl DStarLite {
                 continue;
             }
             let c = self.idx((x, y));
-            let a = self.grid.around(c);
-            for i in a.iter().map(|(_, i)| i).chain([c]) {
+            let w = self.grid.width;
+            let interior = x > 0 && y > 0 && x + 1 < w && y + 1 < self.grid.height;
+            let mut mark = |i: usize| {
                 if !self.dirty[i] {
                     self.dirty[i] = true;
                     self.to_update.push(i);
                 }
+            };
+            if interior {
+                // The 3x3 block by index, no corner tests: which vertices
+                // to update does not depend on what is blocked.
+                let block = [
+                    c - w - 1,
+                    c - w,
+                    c - w + 1,
+                    c - 1,
+                    c,
+                    c + 1,
+                    c + w - 1,
+                    c + w,
+                    c + w + 1,
+                ];
+                block.into_iter().for_each(&mut mark);
+            } else {
+                let a = self.grid.around(c);
+                a.iter().map(|(_, i)| i).chain([c]).for_each(&mut mark);
             }
         }
         let mut to_update = std::mem::take(&mut self.to_update);
