@@ -132,8 +132,10 @@ impl Stage for ServoStage {
 
     fn step(&mut self, step: &mut Step<'_>) {
         self.receive(step);
-        // Commands go out on the tick only (a fixed output rate), and an
-        // e-stop is acted on the moment it arrives.
+        // Commands go out on the tick (a fixed output rate, which also
+        // judges staleness while nothing arrives), on a new tracked input
+        // too where the config asks, and an e-stop is acted on the moment
+        // it arrives.
         let now = self.inputs.now_at(self.config.clock, step.wall_ns);
         step.now_ns = now;
         let estop_now =
@@ -144,7 +146,9 @@ impl Stage for ServoStage {
         let stamped = self.config.clock == ClockSource::Stamps;
         let starved = stamped && !self.fresh_tracked && self.watchdog.is_stale(step.wall_ns);
         let due = match self.config.clock {
-            ClockSource::Wall => step.wake == Wake::Tick,
+            ClockSource::Wall => {
+                step.wake == Wake::Tick || (self.config.command_on_input && self.fresh_tracked)
+            }
             ClockSource::Stamps => self.fresh_tracked || (step.wake == Wake::Tick && starved),
         };
         if !due && !estop_now {
@@ -429,6 +433,31 @@ mod tests {
         assert_eq!((stale[0].linear_mps, stale[0].angular_radps), (0.0, 0.0));
         assert_eq!(h.health.state(), HealthState::DEGRADED);
         assert!(h.health.report().reason.as_str().contains("nav/subgoal"));
+    }
+
+    #[test]
+    fn with_command_on_input_a_new_subgoal_is_answered_at_once_and_the_tick_still_judges_it() {
+        let mut h = stage("command_on_input = true");
+        let wake = h.wake_on("nav/subgoal");
+        h.put("nav/subgoal", heading(10 * S, 1, 0.3));
+        let first = commands(h.step(wake, 10 * S + S / 100));
+        assert_eq!(first.len(), 1, "not waiting for the tick");
+        assert_eq!(first[0].reason, CommandReason::TRACKING);
+        assert_eq!(first[0].stamp.frame_seq, 1);
+        assert!(first[0].angular_radps > 0.0);
+        // A wake with nothing new (another input port) sends nothing.
+        assert!(h.step(wake, 10 * S + S / 50).is_empty());
+        // The tick goes on: tracking while fresh, a stop once stale.
+        let tick = commands(h.step(Wake::Tick, 10 * S + S / 20));
+        assert_eq!(tick[0].reason, CommandReason::TRACKING);
+        let stale = commands(h.step(Wake::Tick, 10 * S + 6 * S / 10));
+        assert_eq!(stale[0].reason, CommandReason::STALE_INPUT);
+        assert_eq!((stale[0].linear_mps, stale[0].angular_radps), (0.0, 0.0));
+        // A subgoal that arrives already stale is answered at once with a stop.
+        h.put("nav/subgoal", heading(10 * S + S / 100, 2, 0.3));
+        let late = commands(h.step(wake, 11 * S));
+        assert_eq!(late[0].reason, CommandReason::STALE_INPUT);
+        assert_eq!((late[0].linear_mps, late[0].angular_radps), (0.0, 0.0));
     }
 
     #[test]

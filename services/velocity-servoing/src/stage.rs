@@ -2,6 +2,10 @@
 //!
 //! ```toml
 //! output_rate_hz = 20.0          # commands are published at this rate, always
+//! command_on_input = false       # on the wall clock, also one command the moment a new
+//!                                # tracked input arrives (capture-to-command without
+//!                                # waiting up to a period for the tick); the tick goes on,
+//!                                # so a stale input still stops the robot on time
 //! clock = "wall"                 # "wall": the system clock, commands at output_rate_hz;
 //!                                # "stamps": time is the inputs' capture times and one
 //!                                # command answers each new tracked input (lock-step
@@ -59,6 +63,7 @@ pub enum Track {
 #[serde(deny_unknown_fields, default)]
 pub struct ServoStageConfig {
     pub output_rate_hz: f64,
+    pub command_on_input: bool,
     pub clock: ClockSource,
     pub track: Track,
     pub path_topic: String,
@@ -75,6 +80,7 @@ impl Default for ServoStageConfig {
     fn default() -> Self {
         Self {
             output_rate_hz: 20.0,
+            command_on_input: false,
             clock: ClockSource::Wall,
             track: Track::Subgoal,
             path_topic: "planned".into(),

@@ -78,7 +78,16 @@ pub fn run(a: E2eArgs) -> Result<()> {
     let model_config = node("inference")
         .and_then(|c| c.get("model_config")?.as_str().map(str::to_string))
         .context("graphs/orfd.toml: the inference node names no model_config")?;
-    let servo_rate_hz = node("velocity-servoing").and_then(|c| c.get("output_rate_hz")?.as_float());
+    let servo = node("velocity-servoing");
+    let servo_timing = ServoTiming {
+        rate_hz: servo
+            .as_ref()
+            .and_then(|c| c.get("output_rate_hz")?.as_float()),
+        on_input: servo
+            .as_ref()
+            .and_then(|c| c.get("command_on_input")?.as_bool())
+            .unwrap_or(false),
+    };
     let frames_folder = node("camera-ingest")
         .and_then(|c| {
             c.get("cameras")?
@@ -127,7 +136,7 @@ pub fn run(a: E2eArgs) -> Result<()> {
         let _ = demo.wait();
     }
     let (arrivals, memory, span_s) = result?;
-    print_report(&arrivals, &memory, span_s, &alone, servo_rate_hz);
+    print_report(&arrivals, &memory, span_s, &alone, servo_timing);
     Ok(())
 }
 
@@ -222,12 +231,32 @@ fn measure(a: &E2eArgs, prefix: &str) -> Result<(Arrivals, BTreeMap<String, Proc
     Ok((arrivals, memory, span))
 }
 
+/// How the graph's servo publishes: the tick alone (rate-limited) or a
+/// command on each new subgoal too (`command_on_input`).
+#[derive(Debug, Clone, Copy)]
+struct ServoTiming {
+    rate_hz: Option<f64>,
+    on_input: bool,
+}
+
+impl ServoTiming {
+    fn describe(&self) -> String {
+        let stages = "camera-ingest (paced by the navigability), inference, subgoal-selection";
+        let tick = self.rate_hz.map_or(String::new(), |r| format!("{r} Hz"));
+        if self.on_input {
+            format!("event-driven: {stages}, velocity-servoing (a command on each new subgoal; its {tick} tick goes on and judges staleness)")
+        } else {
+            format!("event-driven: {stages}; rate-limited: velocity-servoing ({tick}: a subgoal waits up to {:.0} ms for the next tick)", self.rate_hz.map_or(0.0, |r| 1000.0 / r))
+        }
+    }
+}
+
 fn print_report(
     arrivals: &Arrivals,
     memory: &BTreeMap<String, ProcessMemory>,
     span_s: f64,
     alone: &crate::bench_inference::PhaseMedians,
-    servo_rate_hz: Option<f64>,
+    servo: ServoTiming,
 ) {
     let commands = arrivals[PATH.len() - 1].len();
     println!(
@@ -281,13 +310,7 @@ fn print_report(
         c2c,
         c2c - total
     );
-    println!(
-        "event-driven: camera-ingest (paced by the navigability), inference, subgoal-selection; rate-limited: velocity-servoing{}",
-        servo_rate_hz.map_or(String::new(), |r| format!(
-            " ({r} Hz: a subgoal waits up to {:.0} ms for the next tick)",
-            1000.0 / r
-        ))
-    );
+    println!("{}", servo.describe());
     if !memory.is_empty() {
         println!("\n| stage | private MB | shared memory MB |");
         println!("|---|---|---|");
