@@ -445,7 +445,7 @@ mod tests {
         assert_eq!(first[0].reason, CommandReason::TRACKING);
         assert_eq!(first[0].stamp.frame_seq, 1);
         assert!(first[0].angular_radps > 0.0);
-        // A wake with nothing new (another input port) sends nothing.
+        // A wake that brings no new subgoal sends nothing.
         assert!(h.step(wake, 10 * S + S / 50).is_empty());
         // The tick goes on: tracking while fresh, a stop once stale.
         let tick = commands(h.step(Wake::Tick, 10 * S + S / 20));

@@ -80,9 +80,13 @@ pub fn run(a: E2eArgs) -> Result<()> {
         .context("graphs/orfd.toml: the inference node names no model_config")?;
     let servo = node("velocity-servoing");
     let servo_timing = ServoTiming {
+        // A key the graph leaves out has the stage's default.
         rate_hz: servo
             .as_ref()
-            .and_then(|c| c.get("output_rate_hz")?.as_float()),
+            .and_then(|c| c.get("output_rate_hz")?.as_float())
+            .unwrap_or(
+                farsight_velocity_servoing::stage::ServoStageConfig::default().output_rate_hz,
+            ),
         on_input: servo
             .as_ref()
             .and_then(|c| c.get("command_on_input")?.as_bool())
@@ -235,18 +239,18 @@ fn measure(a: &E2eArgs, prefix: &str) -> Result<(Arrivals, BTreeMap<String, Proc
 /// command on each new subgoal too (`command_on_input`).
 #[derive(Debug, Clone, Copy)]
 struct ServoTiming {
-    rate_hz: Option<f64>,
+    rate_hz: f64,
     on_input: bool,
 }
 
 impl ServoTiming {
     fn describe(&self) -> String {
         let stages = "camera-ingest (paced by the navigability), inference, subgoal-selection";
-        let tick = self.rate_hz.map_or(String::new(), |r| format!("{r} Hz"));
+        let tick = format!("{} Hz", self.rate_hz);
         if self.on_input {
             format!("event-driven: {stages}, velocity-servoing (a command on each new subgoal; its {tick} tick goes on and judges staleness)")
         } else {
-            format!("event-driven: {stages}; rate-limited: velocity-servoing ({tick}: a subgoal waits up to {:.0} ms for the next tick)", self.rate_hz.map_or(0.0, |r| 1000.0 / r))
+            format!("event-driven: {stages}; rate-limited: velocity-servoing ({tick}: a subgoal waits up to {:.0} ms for the next tick)", 1000.0 / self.rate_hz)
         }
     }
 }
