@@ -65,14 +65,24 @@ fn every_shipped_graph_checks_and_draws() {
 }
 
 #[test]
-fn four_cameras_are_four_inference_instances_with_their_own_health() {
+fn four_cameras_share_one_inference_process_each_with_its_own_health() {
     let (ok, text) = check(&repo_root().join("graphs/four-cameras.toml"), &[]);
     assert!(ok, "{text}");
+    let writer = |topic: &str| {
+        text.lines()
+            .find(|l| l.starts_with(&format!("{topic} ")))
+            .and_then(|l| l.split_whitespace().nth(2))
+            .map(str::to_string)
+    };
     for cam in ["front", "left", "rear", "right"] {
-        assert!(
-            text.lines()
-                .any(|l| l.starts_with(&format!("health/inference-{cam} "))
-                    && l.contains(&format!("inference-{cam}"))),
+        assert_eq!(
+            writer(&format!("health/inference-{cam}")).as_deref(),
+            Some("inference"),
+            "{cam}:\n{text}"
+        );
+        assert_eq!(
+            writer(&format!("perception/{cam}/heatmap")).as_deref(),
+            Some("inference"),
             "{cam}:\n{text}"
         );
         assert!(

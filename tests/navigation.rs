@@ -14,13 +14,7 @@ fn orfd_road_goal_ahead_drives_forward_and_a_side_goal_turns_toward_it() {
     let config = ModelConfig::load(&repo_root().join("deploy/models/twinlitenet.toml")).unwrap();
     let table = ClassTableFile::open(&config.class_table_path().unwrap()).unwrap();
     let mut backend = Backend::Onnx(Box::new(OnnxModel::load(&config).unwrap()));
-    let dir = repo_root().join("../shared/data/orfd/image_data");
-    let mut files: Vec<_> = std::fs::read_dir(&dir)
-        .unwrap()
-        .flatten()
-        .map(|e| e.path())
-        .collect();
-    files.sort();
+    let files = farsight_tests::orfd_files("image_data");
     // The ORFD camera (calib/cam_K) at the 640x360 model resolution, ~1.5 m up;
     // a 1 m wide robot with a 0.2 m margin.
     let half_widths = safe_half_widths(

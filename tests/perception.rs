@@ -464,3 +464,54 @@ fn paced_by_its_consumer_camera_ingest_loses_no_frame() {
     });
     assert_eq!((h.messages_out, h.dropped, h.skipped), (12, 0, 0), "{h:?}");
 }
+
+/// `farsight bench inference --cameras 2`: one inference process serving
+/// both cameras (the batched LRN fixture, one ONNX Runtime session) against a
+/// process per camera, each camera's frames counted from its own health
+/// topic. The window waits for every camera's results (counts, not the
+/// clock), so a busy machine gives lower rates, not a failure: only that
+/// both layouts served both cameras is checked.
+#[test]
+fn bench_inference_compares_one_session_for_two_cameras_with_two_processes() {
+    let out = std::process::Command::new(farsight_tests::bin("farsight"))
+        .current_dir(repo_root())
+        .args([
+            "bench",
+            "inference",
+            "--model-config",
+            "tests/fixtures/models/lrn-batch/model.toml",
+            "--runs",
+            "1",
+            "--stage-seconds",
+            "1",
+            "--cameras",
+            "2",
+        ])
+        .output()
+        .expect("farsight bench inference runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    for layout in [
+        "| one process, one session (batched) |",
+        "| 2 processes, a session each |",
+    ] {
+        let row = stdout
+            .lines()
+            .find(|l| l.starts_with(layout))
+            .unwrap_or_else(|| panic!("no row {layout}:\n{stdout}"));
+        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+        let per_camera: Vec<f64> = cells[3].split(" / ").map(|f| f.parse().unwrap()).collect();
+        assert_eq!(per_camera.len(), 2, "{row}");
+        assert!(
+            per_camera.iter().all(|&f| f > 0.0),
+            "every camera served: {row}"
+        );
+        let total: f64 = cells[2].parse().unwrap();
+        assert!(
+            (total - per_camera.iter().sum::<f64>()).abs() < 0.2,
+            "{row}"
+        );
+    }
+    assert!(stdout.contains("one process / 2 processes:"), "{stdout}");
+}

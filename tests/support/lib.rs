@@ -346,6 +346,19 @@ pub fn orfd_ingest_toml(extra: &str) -> String {
 
 /// `s` as a TOML string, written by the TOML serializer (Rust's `{:?}`
 /// quoting is not TOML for control characters).
+/// The files of a folder of `../shared/data/orfd` (`image_data`,
+/// `dense_depth`), sorted: every ORFD test reads the frames in one order.
+pub fn orfd_files(folder: &str) -> Vec<PathBuf> {
+    let dir = repo_root().join("../shared/data/orfd").join(folder);
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .flatten()
+        .map(|e| e.path())
+        .collect();
+    files.sort();
+    files
+}
+
 pub fn toml_string(s: &str) -> String {
     toml::Value::String(s.to_string()).to_string()
 }

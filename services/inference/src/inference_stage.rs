@@ -28,13 +28,16 @@ use farsight_interfaces::msg::{
     CameraInfo, HealthState, ImageHeader, PixelEncoding, Stamp, TensorHeader,
 };
 use farsight_interfaces::topics;
-use farsight_stage::{Ports, Stage, StageEnv, StageKind, Step};
+use farsight_stage::{HealthReport, Ports, Stage, StageEnv, StageKind, Step};
 use std::time::Duration;
 
 /// The inference stage: its backend, class table and ports.
 pub struct InferenceStage {
     ports: Ports,
-    port: PortIds,
+    /// Each camera's ports, in the config's order.
+    cameras: Vec<CameraIo>,
+    /// One backend for every camera: one ONNX Runtime session and thread
+    /// pool, however many cameras.
     backend: Backend,
     table: Option<ClassTableFile>,
     timings: Timings,
@@ -43,8 +46,22 @@ pub struct InferenceStage {
     camera_info: Option<CameraInfo>,
     poll_ns: u64,
     last_poll_ns: Option<u64>,
+    health_period_ns: u64,
     /// What to raise when a frame's result is larger than its output.
     size_hint: &'static str,
+}
+
+/// One camera's ports and, where the stage serves a `cameras` list, its
+/// own health report.
+struct CameraIo {
+    port: PortIds,
+    health: Option<CameraHealth>,
+}
+
+struct CameraHealth {
+    port: usize,
+    report: HealthReport,
+    last_sent_ns: Option<u64>,
 }
 
 struct PortIds {
@@ -170,36 +187,69 @@ impl StageKind for InferenceStage {
             .as_deref()
             .map(ClassTableFile::open)
             .transpose()?;
-        let (ports, port) = declare_ports(&config, &plan);
+        let (ports, cameras) = declare_ports(&config, &env.instance, &plan);
         tracing::info!(
             backend = %config.backend,
-            input = %ports.inputs[port.frames].topic,
+            inputs = ?cameras.iter().map(|c| &ports.inputs[c.port.frames].topic).collect::<Vec<_>>(),
+            batched = matches!(&backend, Backend::Onnx(m) if m.batches()),
             "inference config"
         );
         Ok(Self {
             ports,
-            port,
+            cameras,
             backend,
             table,
             timings: Timings::default(),
             camera_info: None,
             poll_ns: (config.class_table_poll_s * 1e9) as u64,
             last_poll_ns: None,
+            health_period_ns: (1e9 / config.health_rate_hz) as u64,
             size_hint,
         })
     }
 }
 
-/// The stage's ports for `config` and what its backend produces.
-fn declare_ports(config: &InferenceConfig, plan: &OutputPlan) -> (Ports, PortIds) {
-    let c = &config.camera;
+/// The stage's ports for `config` and what its backend produces: each
+/// camera's inputs and outputs, and its health output for a `cameras` list.
+fn declare_ports(
+    config: &InferenceConfig,
+    instance: &str,
+    plan: &OutputPlan,
+) -> (Ports, Vec<CameraIo>) {
     let mut ports = Ports {
         // Frames wake the step; the tick polls the class table and keeps
-        // the health report going while no frame comes.
+        // the health reports going while no frame comes.
         tick: Some(Duration::from_millis(200)),
         health_rate_hz: config.health_rate_hz,
         ..Ports::default()
     };
+    let cameras = config
+        .camera_names()
+        .into_iter()
+        .map(|c| {
+            let health = config
+                .camera_health_topic(instance, c)
+                .map(|t| CameraHealth {
+                    port: ports.output(t),
+                    report: HealthReport::new(&format!("{instance}-{c}")),
+                    last_sent_ns: None,
+                });
+            CameraIo {
+                port: camera_ports(&mut ports, config, c, plan),
+                health,
+            }
+        })
+        .collect();
+    (ports, cameras)
+}
+
+/// One camera's inputs and outputs.
+fn camera_ports(
+    ports: &mut Ports,
+    config: &InferenceConfig,
+    c: &str,
+    plan: &OutputPlan,
+) -> PortIds {
     // The normals backend reads depth and the camera model (its mount);
     // every other backend reads the camera frames.
     let normals = matches!(config.backend.as_str(), "normals");
@@ -211,7 +261,7 @@ fn declare_ports(config: &InferenceConfig, plan: &OutputPlan) -> (Ports, PortIds
     let camera_info = normals.then(|| ports.input(topics::camera_info(c).name()));
     // Image payloads are bytes: an f32 image is 4 bytes a pixel.
     let f32_bytes = core::mem::size_of::<f32>();
-    let port = PortIds {
+    PortIds {
         frames,
         camera_info,
         classes: plan
@@ -229,8 +279,7 @@ fn declare_ports(config: &InferenceConfig, plan: &OutputPlan) -> (Ports, PortIds
         far_field: plan
             .far_field_len
             .map(|n| ports.slice_output(topics::far_field_logits(c).name(), f32_bytes * n)),
-    };
-    (ports, port)
+    }
 }
 
 impl Stage for InferenceStage {
@@ -241,24 +290,36 @@ impl Stage for InferenceStage {
     fn step(&mut self, step: &mut Step<'_>) {
         // Nothing makes this stage degraded: a bad frame is a counted drop.
         step.health.set(HealthState::OK, "");
-        if let Some(port) = self.port.camera_info {
+        if let Some(port) = self.cameras[0].port.camera_info {
             if let Some(info) = step.inbox.take::<CameraInfo>(port) {
                 self.camera_info = Some(info);
             }
         }
-        // Whichever wake it arrived on: an untaken frame is gone after the step.
-        if let Some(frame) = step.inbox.take::<Image>(self.port.frames) {
-            step.health.input();
-            self.frame(&frame, step);
+        // Whichever wake it arrived on: an untaken frame is gone after the
+        // step. Every camera's frame that is here goes in one batch.
+        let mut frames: Vec<(usize, Image)> = Vec::new();
+        for (k, cam) in self.cameras.iter_mut().enumerate() {
+            if let Some(frame) = step.inbox.take::<Image>(cam.port.frames) {
+                step.health.input();
+                if let Some(h) = &mut cam.health {
+                    h.report.set(HealthState::OK, "");
+                    h.report.input();
+                }
+                frames.push((k, frame));
+            }
         }
+        if !frames.is_empty() {
+            self.frames(&frames, step);
+        }
+        self.send_camera_health(step);
         self.poll_class_table(step.wall_ns);
     }
 }
 
 impl InferenceStage {
-    /// Runs one frame and sends what it produced, or counts it dropped.
-    fn frame(&mut self, frame: &Image, step: &mut Step<'_>) {
-        let h = frame.header;
+    /// Runs the frames of one step (`(camera index, frame)`) through the
+    /// backend together and sends what each produced, or counts it dropped.
+    fn frames(&mut self, frames: &[(usize, Image)], step: &mut Step<'_>) {
         if let (Backend::Normals(_, camera, _), Some(info)) =
             (&mut self.backend, self.camera_info.take())
         {
@@ -268,41 +329,92 @@ impl InferenceStage {
             }
         }
         let t = self.table.as_ref().map(|t| t.table());
-        let p = match self.backend.run(&h, &frame.data, t, &mut self.timings) {
-            Ok(p) => p,
-            Err(e) => {
-                step.health
-                    .dropped(&format_args!("frame {}: {e}", h.stamp.frame_seq));
-                return;
+        let inputs: Vec<(&ImageHeader, &[u8])> = frames
+            .iter()
+            .map(|(_, f)| (&f.header, f.data.as_slice()))
+            .collect();
+        let results = self.backend.run_batch(&inputs, t, &mut self.timings);
+        // The latency runs to the end of the backend's work (its own
+        // timings), as it did when the stage read the clock after it.
+        let tm = &self.timings;
+        let compute_ns = ((tm.preprocess_s + tm.inference_s + tm.postprocess_s) * 1e9) as u64;
+        let done_ns = step.wall_ns.saturating_add(compute_ns);
+        for ((k, frame), result) in frames.iter().zip(results) {
+            let h = frame.header;
+            let cam = &mut self.cameras[*k];
+            let sent = match result {
+                Ok(p) => Self::send(&self.ports, &cam.port, self.size_hint, &p, &h, step),
+                Err(e) => {
+                    step.health.dropped(&format_args!(
+                        "{} frame {}: {e}",
+                        self.ports.inputs[cam.port.frames].topic, h.stamp.frame_seq
+                    ));
+                    false
+                }
+            };
+            if sent {
+                step.health.output(h.stamp, done_ns);
             }
-        };
-        let messages = self.messages(&p, h.stamp, h.camera_id);
-        // All or nothing: a result larger than its output's memory drops the
-        // frame before any part of it goes out.
+            if let Some(ch) = &mut cam.health {
+                if sent {
+                    ch.report.output(h.stamp, done_ns);
+                } else {
+                    ch.report.count_dropped();
+                }
+            }
+        }
+    }
+
+    /// Sends one frame's result on its camera's outputs, all or nothing:
+    /// a result larger than its output's memory drops the frame before any
+    /// part of it goes out (counted and logged in the stage's health).
+    fn send(
+        ports: &Ports,
+        port: &PortIds,
+        size_hint: &str,
+        p: &Perception,
+        h: &ImageHeader,
+        step: &mut Step<'_>,
+    ) -> bool {
+        let messages = Self::messages(port, p, h.stamp, h.camera_id);
         for (port, msg) in &messages {
-            let out = &self.ports.outputs[*port];
+            let out = &ports.outputs[*port];
             let bytes = payload_bytes(msg);
             if bytes > out.max_slice_bytes {
                 step.health.dropped(&format_args!(
                     "publishing frame {}: {} needs {bytes} bytes, its output holds at most {} ({})",
-                    h.stamp.frame_seq, out.topic, out.max_slice_bytes, self.size_hint
+                    h.stamp.frame_seq, out.topic, out.max_slice_bytes, size_hint
                 ));
-                return;
+                return false;
             }
         }
         for (port, msg) in messages {
             step.out.send(port, msg);
         }
-        // The latency runs to the end of the backend's work (its own
-        // timings), as it did when the stage read the clock after it.
-        let t = &self.timings;
-        let compute_ns = ((t.preprocess_s + t.inference_s + t.postprocess_s) * 1e9) as u64;
-        step.health
-            .output(h.stamp, step.wall_ns.saturating_add(compute_ns));
+        true
+    }
+
+    /// Each camera's own health report, at the stage's health rate.
+    fn send_camera_health(&mut self, step: &mut Step<'_>) {
+        let now = step.wall_ns;
+        for ch in self.cameras.iter_mut().filter_map(|c| c.health.as_mut()) {
+            let due = ch
+                .last_sent_ns
+                .is_none_or(|t| now.saturating_sub(t) >= self.health_period_ns);
+            if due {
+                step.out.send(ch.port, ch.report.stamped(now));
+                ch.last_sent_ns = Some(now);
+            }
+        }
     }
 
     /// The messages of one result, in the order they go out.
-    fn messages(&self, p: &Perception, stamp: Stamp, camera_id: u32) -> Vec<(usize, Message)> {
+    fn messages(
+        port: &PortIds,
+        p: &Perception,
+        stamp: Stamp,
+        camera_id: u32,
+    ) -> Vec<(usize, Message)> {
         let (w, h) = (p.width as u32, p.height as u32);
         let image = |enc, data: Vec<u8>| Image {
             header: ImageHeader::packed(stamp, camera_id, w, h, enc),
@@ -312,21 +424,21 @@ impl InferenceStage {
         // Each output's port exists whenever the backend can produce it
         // (the plan follows the same rules as the backend).
         if let Some(c) = &p.classes {
-            if let (Some(ids), Some(conf)) = (self.port.classes, self.port.confidence) {
+            if let (Some(ids), Some(conf)) = (port.classes, port.confidence) {
                 out.push((ids, image(PixelEncoding::MONO8, c.ids.clone()).into()));
                 // An f32 image is 4 little-endian bytes a pixel.
                 let bytes = bytemuck::cast_slice(&c.confidence).to_vec();
                 out.push((conf, image(PixelEncoding::F32, bytes).into()));
             }
         }
-        if let (Some(m), Some(port)) = (&p.navigability, self.port.navigability) {
+        if let (Some(m), Some(port)) = (&p.navigability, port.navigability) {
             out.push((port, image(PixelEncoding::MONO8, m.clone()).into()));
         }
-        if let (Some(hm), Some(port)) = (&p.heatmap, self.port.heatmap) {
+        if let (Some(hm), Some(port)) = (&p.heatmap, port.heatmap) {
             let bytes = bytemuck::cast_slice(hm).to_vec();
             out.push((port, image(PixelEncoding::F32, bytes).into()));
         }
-        if let (Some((shape, data)), Some(port)) = (&p.far_field, self.port.far_field) {
+        if let (Some((shape, data)), Some(port)) = (&p.far_field, port.far_field) {
             let dims = shape.map(|d| d as u32);
             let tensor = Tensor {
                 header: TensorHeader::new(stamp, camera_id, &dims),
@@ -431,6 +543,92 @@ mod tests {
         assert_eq!((r.messages_in, r.messages_out, r.dropped), (1, 1, 0));
         assert_eq!(r.stamp.frame_seq, 3);
         assert_eq!(h.health.state(), HealthState::OK);
+    }
+
+    #[test]
+    fn several_cameras_share_one_backend_each_with_its_outputs_and_health() {
+        let toml = format!("cameras = [\"front\", \"rear\"]\n{HSV}");
+        let mut h = stage(&toml);
+        let io = config(&toml).topics("inference", Path::new(".")).unwrap();
+        check_ports(&io, h.stage.ports()).unwrap();
+        const REAR: &str = "camera/rear/image";
+        let wake = h.wake_on(IMAGE);
+        h.put(IMAGE, frame(3, 2, 1)).put(REAR, frame(4, 1, 2));
+        let out = h.step(wake, 5_000_000_000);
+        let topics: Vec<&str> = out.iter().map(|(t, _)| t.as_str()).collect();
+        assert_eq!(
+            topics,
+            [
+                NAV,
+                "perception/rear/navigability",
+                "health/inference-front",
+                "health/inference-rear"
+            ],
+            "both frames in one step, then each camera's health"
+        );
+        let nav = |i: usize| Image::try_from(out[i].1.clone()).unwrap();
+        assert_eq!(
+            (nav(0).header.stamp, nav(0).data.clone()),
+            (stamp(3), vec![255, 255, 0])
+        );
+        assert_eq!(
+            (nav(1).header.stamp, nav(1).data.clone()),
+            (stamp(4), vec![255, 0, 0])
+        );
+        let camera_health = |out: &[(String, Message)], topic: &str| {
+            let (_, m) = out.iter().find(|(t, _)| t == topic).unwrap();
+            match m {
+                Message::Health(r) => *r,
+                other => panic!("{topic}: {other:?}"),
+            }
+        };
+        let front = camera_health(&out, "health/inference-front");
+        assert_eq!(front.stage.as_str(), "inference-front");
+        assert_eq!(
+            (front.messages_in, front.messages_out, front.stamp.frame_seq),
+            (1, 1, 3)
+        );
+        // A bad rear frame is the rear camera's drop, and the stage's.
+        let mut short = frame(5, 2, 2);
+        short.data.truncate(9);
+        h.put(REAR, short);
+        let out = h.step(h.wake_on(REAR), 5_500_000_000);
+        assert!(
+            out.is_empty(),
+            "no output, and no health before its period: {out:?}"
+        );
+        let out = h.step(Wake::Tick, 6_000_000_000);
+        let rear = camera_health(&out, "health/inference-rear");
+        let front = camera_health(&out, "health/inference-front");
+        assert_eq!(
+            (rear.messages_in, rear.messages_out, rear.dropped),
+            (2, 1, 1)
+        );
+        assert_eq!((front.messages_in, front.dropped), (1, 0));
+        let r = h.health.report();
+        assert_eq!((r.messages_in, r.messages_out, r.dropped), (3, 2, 1));
+    }
+
+    #[test]
+    fn a_cameras_list_is_checked_by_name() {
+        let err = |toml: &str| {
+            farsight_stage::parse_config::<InferenceConfig>(toml, "i.toml")
+                .unwrap_err()
+                .to_string()
+        };
+        assert_eq!(
+            err("camera = \"left\"\ncameras = [\"front\"]"),
+            "config key `camera` = left: expected left out when `cameras` lists the cameras"
+        );
+        assert_eq!(
+            err("cameras = [\"front\", \"rear\", \"front\"]"),
+            "config key `cameras` = [\"front\", \"rear\", \"front\"]: expected each camera once"
+        );
+        assert!(err("cameras = [\"a b\"]").starts_with("config key `cameras[0]` = a b"));
+        assert!(
+            err("backend = \"normals\"\ncameras = [\"front\", \"rear\"]")
+                .contains("run one instance per depth camera")
+        );
     }
 
     #[test]
@@ -546,7 +744,7 @@ mod tests {
             let io = c.topics("inference", &repo()).unwrap();
             let m = ModelConfig::load(&repo().join(model)).unwrap();
             let has_table = !table.is_empty() || m.class_table_path().is_some();
-            let (ports, _) = declare_ports(&c, &OutputPlan::onnx(&m, &[], has_table));
+            let (ports, _) = declare_ports(&c, "inference", &OutputPlan::onnx(&m, &[], has_table));
             check_ports(&io, &ports).unwrap_or_else(|e| panic!("{model}: {e}"));
         }
     }
@@ -570,7 +768,8 @@ mod tests {
             OutputPlan::onnx(&m, &dynamic, false).classes_px,
             Some(640 * 360)
         );
-        let (ports, port) = declare_ports(&config(""), &fallback);
+        let (ports, cams) = declare_ports(&config(""), "inference", &fallback);
+        let port = &cams[0].port;
         let bytes = |p: Option<usize>| ports.outputs[p.unwrap()].max_slice_bytes;
         assert_eq!(bytes(port.classes), 640 * 360);
         assert_eq!(bytes(port.confidence), 4 * 640 * 360, "f32 a pixel");
@@ -584,9 +783,9 @@ mod tests {
             .product();
         let plan = OutputPlan::onnx(&fitam, &[], false);
         assert_eq!(plan.far_field_len, Some(want));
-        let (ports, port) = declare_ports(&config(""), &plan);
+        let (ports, cams) = declare_ports(&config(""), "inference", &plan);
         assert_eq!(
-            ports.outputs[port.far_field.unwrap()].max_slice_bytes,
+            ports.outputs[cams[0].port.far_field.unwrap()].max_slice_bytes,
             4 * want
         );
     }

@@ -175,6 +175,41 @@ impl Backend {
     }
 }
 
+impl Backend {
+    /// Runs several frames (one per camera): through one `session.run` when
+    /// an onnx model batches, else one after another. Each frame gets its
+    /// own result, in order; `timings` covers them all.
+    pub fn run_batch(
+        &mut self,
+        frames: &[(&ImageHeader, &[u8])],
+        table: Option<&ClassTable>,
+        timings: &mut Timings,
+    ) -> Vec<Result<Perception, FrameError>> {
+        match self {
+            Backend::Onnx(model) => model
+                .run_batch(frames, timings, |_, outputs| {
+                    Perception::from_outputs(outputs, table)
+                })
+                .into_iter()
+                .map(|r| r.map_err(FrameError::from).and_then(|p| p))
+                .collect(),
+            _ => {
+                let mut total = Timings::default();
+                let results = frames
+                    .iter()
+                    .map(|(h, f)| {
+                        let r = self.run(h, f, table, timings);
+                        total.inference_s += timings.inference_s;
+                        r
+                    })
+                    .collect();
+                *timings = total;
+                results
+            }
+        }
+    }
+}
+
 /// Depth in metres from a MONO16 (times `scale_m`) or F32 (metres) image; 0 = no data.
 pub fn depth_metres(
     header: &ImageHeader,

@@ -106,6 +106,9 @@ pub struct OnnxModel {
     /// The model's own shape of each configured output (-1 = dynamic), in
     /// the config's order: the stage sizes its output buffers from them.
     output_shapes: Vec<Vec<i64>>,
+    /// The input and every configured output have a dynamic leading (batch)
+    /// dimension: several frames can go through one `session.run`.
+    batches: bool,
 }
 
 fn float_tensor_shape<'a>(
@@ -281,12 +284,16 @@ impl OnnxModel {
             output_shapes.push(shape.to_vec());
         }
         let len = want.iter().product::<i64>() as usize;
+        // Batching needs the batch dimension open on both sides: a model
+        // exported for one frame ([1, ...]) runs its frames one at a time.
+        let batches = model_shape[0] < 0 && output_shapes.iter().all(|s| s.len() > 1 && s[0] < 0);
         Ok(Self {
             session,
             config: config.clone(),
             pre: None,
             input: vec![0.0; len],
             output_shapes,
+            batches,
         })
     }
 
@@ -300,6 +307,12 @@ impl OnnxModel {
         &self.output_shapes
     }
 
+    /// Whether frames can go through the model several at a time (its input
+    /// and outputs have a dynamic batch dimension).
+    pub fn batches(&self) -> bool {
+        self.batches
+    }
+
     /// Runs one frame and hands each configured output's spec, shape and values
     /// to `post`, read in place from ONNX Runtime's buffers.
     pub fn run<R>(
@@ -309,38 +322,138 @@ impl OnnxModel {
         timings: &mut Timings,
         post: impl FnOnce(&[(&OutputSpec, Vec<usize>, &[f32])]) -> R,
     ) -> Result<R, InferError> {
+        let mut post = Some(post);
+        self.run_batch(&[(header, frame)], timings, |_, views| {
+            (post.take().expect("one frame, one call"))(views)
+        })
+        .pop()
+        .expect("one frame, one result")
+    }
+
+    /// Runs `frames` through one `session.run` where the model batches
+    /// ([`Self::batches`]), else one at a time in this session, and hands
+    /// each frame's outputs to `post` with the frame's index. A frame the
+    /// pre-processing refuses gets its own error and leaves the batch; the
+    /// rest still run. `timings` covers the whole batch.
+    pub fn run_batch<R>(
+        &mut self,
+        frames: &[(&ImageHeader, &[u8])],
+        timings: &mut Timings,
+        mut post: impl FnMut(usize, &[(&OutputSpec, Vec<usize>, &[f32])]) -> R,
+    ) -> Vec<Result<R, InferError>> {
+        let group = if self.batches { frames.len().max(1) } else { 1 };
+        let mut total = Timings::default();
+        let mut results = Vec::with_capacity(frames.len());
+        for chunk in frames.chunks(group) {
+            let t = self.run_group(chunk, &mut post, &mut results);
+            total.preprocess_s += t.preprocess_s;
+            total.inference_s += t.inference_s;
+            total.postprocess_s += t.postprocess_s;
+        }
+        *timings = total;
+        results
+            .into_iter()
+            .map(|r| r.expect("every frame has a result"))
+            .collect()
+    }
+
+    /// One `session.run` over `frames`, their results appended to `results`
+    /// (whose length is the first frame's index).
+    fn run_group<R>(
+        &mut self,
+        frames: &[(&ImageHeader, &[u8])],
+        post: &mut impl FnMut(usize, &[(&OutputSpec, Vec<usize>, &[f32])]) -> R,
+        results: &mut Vec<Option<Result<R, InferError>>>,
+    ) -> Timings {
         let t0 = Instant::now();
         let pre = self
             .pre
             .get_or_insert_with(|| Preprocessor::new(&self.config.input));
-        pre.run(header, frame, &mut self.input)?;
+        let per_frame = pre.len();
+        // The input buffer grows to the largest batch seen (one frame per
+        // camera): bounded by the config, not by what arrives.
+        if self.input.len() < frames.len() * per_frame {
+            self.input.resize(frames.len() * per_frame, 0.0);
+        }
+        let first = results.len();
+        let mut batch: Vec<usize> = Vec::with_capacity(frames.len());
+        for (i, (header, frame)) in frames.iter().enumerate() {
+            let slot = &mut self.input[batch.len() * per_frame..(batch.len() + 1) * per_frame];
+            match pre.run(header, frame, slot) {
+                Ok(()) => {
+                    batch.push(first + i);
+                    results.push(None);
+                }
+                Err(e) => results.push(Some(Err(e.into()))),
+            }
+        }
         let t1 = Instant::now();
-        let shape = self.config.input_shape().map(|d| d as usize);
-        let tensor = TensorRef::from_array_view((shape, self.input.as_slice()))
-            .map_err(|e| InferError::Run(e.to_string()))?;
+        let mut t2 = t1;
+        if !batch.is_empty() {
+            if let Err(e) = self.run_session(&batch, post, results, &mut t2) {
+                for &i in &batch {
+                    results[i] = Some(Err(InferError::Run(e.clone())));
+                }
+            }
+        }
+        Timings {
+            preprocess_s: (t1 - t0).as_secs_f64(),
+            inference_s: (t2 - t1).as_secs_f64(),
+            postprocess_s: t2.elapsed().as_secs_f64(),
+        }
+    }
+
+    /// The `session.run` of a batch already in the input buffer; each
+    /// output is split into its frames. `ran` is set when the model is done.
+    fn run_session<R>(
+        &mut self,
+        batch: &[usize],
+        post: &mut impl FnMut(usize, &[(&OutputSpec, Vec<usize>, &[f32])]) -> R,
+        results: &mut [Option<Result<R, InferError>>],
+        ran: &mut Instant,
+    ) -> Result<(), String> {
+        let n = batch.len();
+        let mut shape = self.config.input_shape().map(|d| d as usize);
+        shape[0] = n;
+        let len = shape.iter().product::<usize>();
+        let tensor =
+            TensorRef::from_array_view((shape, &self.input[..len])).map_err(|e| e.to_string())?;
         let outputs = self
             .session
             .run(ort::inputs![self.config.input.name.as_str() => tensor])
-            .map_err(|e| InferError::Run(e.to_string()))?;
-        let t2 = Instant::now();
-        let mut views = Vec::with_capacity(self.config.outputs.len());
+            .map_err(|e| e.to_string())?;
+        *ran = Instant::now();
+        let mut whole = Vec::with_capacity(self.config.outputs.len());
         for spec in &self.config.outputs {
-            let value = outputs.get(spec.name.as_str()).ok_or_else(|| {
-                InferError::Run(format!("output '{}' missing from the result", spec.name))
-            })?;
+            let value = outputs
+                .get(spec.name.as_str())
+                .ok_or_else(|| format!("output '{}' missing from the result", spec.name))?;
             let (s, data) = value
                 .try_extract_tensor::<f32>()
-                .map_err(|e| InferError::Run(format!("output '{}': {e}", spec.name)))?;
-            views.push((
-                spec,
-                s.iter().map(|&d| d.max(0) as usize).collect::<Vec<_>>(),
-                data,
-            ));
+                .map_err(|e| format!("output '{}': {e}", spec.name))?;
+            let mut s: Vec<usize> = s.iter().map(|&d| d.max(0) as usize).collect();
+            if n > 1 {
+                // A batched output answers one frame per input frame.
+                if s.first() != Some(&n) || data.len() % n != 0 {
+                    return Err(format!(
+                        "output '{}' has shape {s:?} for a batch of {n} frames",
+                        spec.name
+                    ));
+                }
+                s[0] = 1;
+            }
+            whole.push((spec, s, data));
         }
-        let result = post(&views);
-        timings.preprocess_s = (t1 - t0).as_secs_f64();
-        timings.inference_s = (t2 - t1).as_secs_f64();
-        timings.postprocess_s = t2.elapsed().as_secs_f64();
-        Ok(result)
+        for (k, &i) in batch.iter().enumerate() {
+            let views: Vec<(&OutputSpec, Vec<usize>, &[f32])> = whole
+                .iter()
+                .map(|(spec, s, data)| {
+                    let per = data.len() / n;
+                    (*spec, s.clone(), &data[k * per..(k + 1) * per])
+                })
+                .collect();
+            results[i] = Some(Ok(post(i, &views)));
+        }
+        Ok(())
     }
 }

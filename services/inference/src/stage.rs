@@ -2,6 +2,10 @@
 //!
 //! ```toml
 //! camera = "front"               # reads camera/<camera>/image (camera/<camera>/depth for normals)
+//! cameras = []                   # several cameras through one backend (one ONNX Runtime
+//!                                # session, batched where the model's batch dimension is
+//!                                # open); replaces `camera`. Each camera's own health goes
+//!                                # out on health/<instance>-<camera>. Not for normals.
 //! backend = "onnx"               # "onnx", "hsv" (colour thresholds) or "normals" (depth)
 //! model_config = "models/twinlitenet.toml"   # onnx: relative to this file
 //! class_table = ""               # onnx: overrides the model config's class table
@@ -33,6 +37,8 @@ use serde::{Deserialize, Serialize};
 #[serde(deny_unknown_fields, default)]
 pub struct InferenceConfig {
     pub camera: String,
+    /// Several cameras served by one backend; empty: `camera` alone.
+    pub cameras: Vec<String>,
     pub backend: String,
     pub model_config: String,
     pub class_table: String,
@@ -59,6 +65,7 @@ impl Default for InferenceConfig {
     fn default() -> Self {
         Self {
             camera: "front".into(),
+            cameras: Vec::new(),
             backend: "onnx".into(),
             model_config: "models/twinlitenet.toml".into(),
             class_table: String::new(),
@@ -94,6 +101,30 @@ impl Validate for InferenceConfig {
     fn check_rules(&self) -> Result<(), ConfigError> {
         farsight_interfaces::topics::validate_name(&self.camera)
             .map_err(|e| ConfigError::invalid("camera", &self.camera, e.why))?;
+        let list = || format!("{:?}", self.cameras);
+        if !self.cameras.is_empty() && self.camera != Self::default().camera {
+            return Err(ConfigError::invalid(
+                "camera",
+                &self.camera,
+                "left out when `cameras` lists the cameras",
+            ));
+        }
+        for (i, c) in self.cameras.iter().enumerate() {
+            farsight_interfaces::topics::validate_name(c)
+                .map_err(|e| ConfigError::invalid(format!("cameras[{i}]"), c, e.why))?;
+            ConfigError::check(
+                !self.cameras[..i].contains(c),
+                "cameras",
+                list(),
+                "each camera once",
+            )?;
+        }
+        ConfigError::check(
+            self.cameras.len() <= 1 || self.backend != "normals",
+            "cameras",
+            list(),
+            "one camera with backend = \"normals\" (its camera model and ray table are per camera: run one instance per depth camera)",
+        )?;
         match self.backend.as_str() {
             "onnx" => ConfigError::check(
                 !self.model_config.is_empty(),
@@ -120,11 +151,48 @@ impl Validate for InferenceConfig {
     }
 }
 
+impl InferenceConfig {
+    /// The cameras this instance serves: `cameras`, or `camera` alone.
+    pub fn camera_names(&self) -> Vec<&str> {
+        if self.cameras.is_empty() {
+            vec![self.camera.as_str()]
+        } else {
+            self.cameras.iter().map(String::as_str).collect()
+        }
+    }
+
+    /// The per-camera health topic of a camera in `cameras`; `None` for a
+    /// single `camera`, whose health is the instance's.
+    pub fn camera_health_topic(&self, instance: &str, camera: &str) -> Option<String> {
+        (!self.cameras.is_empty()).then(|| {
+            topics::health(&format!("{instance}-{camera}"))
+                .name()
+                .to_string()
+        })
+    }
+}
+
 impl farsight_stage::DeclaresTopics for InferenceConfig {
     fn topics(&self, instance: &str, config_dir: &std::path::Path) -> Result<Io, String> {
-        use crate::model_config::{ModelConfig, OutputKind};
-        let c = &self.camera;
         let mut io = Io::for_instance(instance);
+        for c in self.camera_names() {
+            if let Some(t) = self.camera_health_topic(instance, c) {
+                io.write(t);
+            }
+            self.camera_topics(c, config_dir, &mut io)?;
+        }
+        Ok(io)
+    }
+}
+
+impl InferenceConfig {
+    fn camera_topics(
+        &self,
+        c: &str,
+        config_dir: &std::path::Path,
+        io: &mut Io,
+    ) -> Result<(), String> {
+        use crate::model_config::{ModelConfig, OutputKind};
         match self.backend.as_str() {
             "normals" => {
                 // The camera model gives the mount: no normals without it.
@@ -165,7 +233,7 @@ impl farsight_stage::DeclaresTopics for InferenceConfig {
                 }
             }
         }
-        Ok(io)
+        Ok(())
     }
 }
 

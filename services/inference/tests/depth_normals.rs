@@ -3,7 +3,6 @@
 
 use farsight_inference::normals::{navigability, NormalsConfig};
 use farsight_interfaces::camera::{Camera, CameraModel, Mount};
-use std::path::Path;
 
 /// The ORFD camera (calib/cam_K); calib/cam_RT puts its optical axis about
 /// 6.7 degrees below the lidar's horizontal.
@@ -20,13 +19,7 @@ use farsight_tests::navigable_fraction as fraction;
 
 #[test]
 fn orfd_road_ahead_is_ground() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/orfd/dense_depth");
-    let mut files: Vec<_> = std::fs::read_dir(&dir)
-        .unwrap()
-        .flatten()
-        .map(|e| e.path())
-        .collect();
-    files.sort();
+    let files = farsight_tests::orfd_files("dense_depth");
     let cfg = NormalsConfig::default();
     let cam = orfd_camera();
     for f in &files {

@@ -14,14 +14,7 @@ fn repo() -> PathBuf {
 }
 
 fn orfd_frames() -> Vec<(ImageHeader, Vec<u8>)> {
-    let dir = repo().join("../shared/data/orfd/image_data");
-    let mut files: Vec<_> = std::fs::read_dir(&dir)
-        .unwrap()
-        .flatten()
-        .map(|e| e.path())
-        .collect();
-    files.sort();
-    files
+    farsight_tests::orfd_files("image_data")
         .iter()
         .map(|p| farsight_imaging::decode_png(&std::fs::read(p).unwrap()).unwrap())
         .collect()

@@ -489,6 +489,20 @@ impl HealthReport {
         tracing::warn!(dropped_total = self.msg.dropped, "dropped input: {why}");
     }
 
+    /// Counts an input dropped whose reason another report already logged
+    /// (one camera's share of its stage's drops).
+    pub fn count_dropped(&mut self) {
+        self.msg.dropped += 1;
+    }
+
+    /// The report as it goes out at `now_ns`: a stage that sends a report
+    /// of its own (one per camera) stamps it the way [`Health`] does.
+    pub fn stamped(&self, now_ns: u64) -> StageHealth {
+        let mut msg = self.msg;
+        msg.stamp.capture_time_ns = now_ns;
+        msg
+    }
+
     /// Records the inputs latest-value delivery skipped (a total, not a delta).
     pub fn set_skipped(&mut self, total: u64) {
         self.msg.skipped = total;
@@ -560,7 +574,7 @@ impl Health {
     }
 
     fn send(&mut self, now_ns: u64) {
-        self.report.msg.stamp.capture_time_ns = now_ns;
+        self.report.msg = self.report.stamped(now_ns);
         if let Err(e) = self.publisher.publish(&self.report.msg) {
             tracing::warn!("health publish failed: {e}");
         }

@@ -312,8 +312,10 @@ fn publish(ports: &Ports, publishers: &mut [AnyPublisher], out: &mut Outbox, hea
 /// Checks a stage's ports against what its config declares to the graph
 /// ([`crate::DeclaresTopics`]): every declared read is an input, and the
 /// outputs are exactly the declared writes (besides `health/<instance>`,
-/// which the runtime writes). An input the declaration leaves out is
-/// allowed: a topic the stage listens to but does not need in this config.
+/// which the runtime writes: a declared health topic may have no output,
+/// and a stage may also write its own, such as one per camera). An input the
+/// declaration leaves out is allowed: a topic the stage listens to but does
+/// not need in this config.
 pub fn check_ports(io: &crate::Io, ports: &Ports) -> Result<(), String> {
     for r in &io.reads {
         if ports.input_index(&r.topic).is_none() {
@@ -324,19 +326,13 @@ pub fn check_ports(io: &crate::Io, ports: &Ports) -> Result<(), String> {
         }
     }
     let outputs: Vec<&str> = ports.outputs.iter().map(|o| o.topic.as_str()).collect();
-    let declared: Vec<&str> = io
-        .writes
-        .iter()
-        .map(String::as_str)
-        .filter(|t| !t.starts_with("health/"))
-        .collect();
     for t in &outputs {
-        if !declared.contains(t) {
+        if !io.writes.iter().any(|w| w == t) {
             return Err(format!("writes `{t}`, which its config does not declare"));
         }
     }
-    for t in &declared {
-        if !outputs.contains(t) {
+    for t in io.writes.iter().filter(|t| !t.starts_with("health/")) {
+        if !outputs.contains(&t.as_str()) {
             return Err(format!("declares a write of `{t}`, but has no such output"));
         }
     }

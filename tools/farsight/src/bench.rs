@@ -131,6 +131,12 @@ pub struct InferenceArgs {
     /// Seconds of the stage throughput measurement (0 = skip it).
     #[arg(long, default_value_t = 10.0)]
     pub stage_seconds: f64,
+    /// Cameras in the throughput measurement. Above 1, compares one
+    /// inference process serving them all (one ONNX Runtime session,
+    /// batched where the model's batch dimension is open) with one process
+    /// per camera: frames/s, CPU and private memory.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=16))]
+    pub cameras: u16,
 }
 
 #[derive(Args)]

@@ -103,16 +103,122 @@ pub fn run(a: InferenceArgs) -> Result<()> {
         p + q,
         100.0 * (p + q) / i
     );
-    if a.stage_seconds > 0.0 {
-        let fps = stage_fps(&a)?;
-        println!("\nstage throughput: camera-ingest at 200 Hz -> farsight-inference -> {fps:.1} navigability images/s");
+    if a.stage_seconds > 0.0 && a.cameras == 1 {
+        let r = stage_layout(&a, &[vec![camera_name(0)]])?;
+        println!(
+            "\nstage throughput: camera-ingest at 200 Hz -> farsight-inference -> {:.1} frames/s ({:.0}% of a core)",
+            r.frames_per_s(),
+            100.0 * r.cpu_share()
+        );
+    } else if a.stage_seconds > 0.0 {
+        let n = usize::from(a.cameras);
+        let cameras: Vec<String> = (0..n).map(camera_name).collect();
+        println!(
+            "\n{n} cameras (camera-ingest at 200 Hz each), {:.0} s each layout, one run:\n",
+            a.stage_seconds
+        );
+        println!("| layout | frames/s, all cameras | per camera | inference CPU, % of a core | CPU ms a frame | private memory MB |");
+        println!("|---|---|---|---|---|---|");
+        let one = stage_layout(&a, std::slice::from_ref(&cameras))?;
+        let each = stage_layout(
+            &a,
+            &cameras.iter().map(|c| vec![c.clone()]).collect::<Vec<_>>(),
+        )?;
+        for (name, r) in [
+            (
+                format!(
+                    "one process, one session ({})",
+                    if r_batches(&config) {
+                        "batched"
+                    } else {
+                        "frames one at a time"
+                    }
+                ),
+                &one,
+            ),
+            (format!("{n} processes, a session each"), &each),
+        ] {
+            println!(
+                "| {name} | {:.1} | {} | {:.0}% | {:.1} | {:.1} |",
+                r.frames_per_s(),
+                r.per_camera
+                    .iter()
+                    .map(|f| format!("{:.1}", *f as f64 / r.seconds))
+                    .collect::<Vec<_>>()
+                    .join(" / "),
+                100.0 * r.cpu_share(),
+                1e3 * r.cpu_s / r.frames().max(1) as f64,
+                crate::memory::mb(r.private_bytes)
+            );
+        }
+        println!(
+            "\none process / {n} processes: {:.2}x the frames/s, {:.2}x the CPU a frame, {:.2}x the private memory",
+            one.frames_per_s() / each.frames_per_s(),
+            (one.cpu_s / one.frames().max(1) as f64) / (each.cpu_s / each.frames().max(1) as f64),
+            one.private_bytes as f64 / each.private_bytes.max(1) as f64
+        );
     }
     Ok(())
 }
 
-/// Runs camera-ingest (as fast as 200 Hz) and the inference stage as real
-/// processes and counts navigability images over `stage_seconds`.
-fn stage_fps(a: &InferenceArgs) -> Result<f64> {
+/// Whether the model runs a step's frames as one batch.
+fn r_batches(config: &ModelConfig) -> bool {
+    OnnxModel::load(config).is_ok_and(|m| m.batches())
+}
+
+fn camera_name(i: usize) -> String {
+    if i == 0 {
+        "front".into()
+    } else {
+        format!("cam{i}")
+    }
+}
+
+/// What one layout of inference processes did in the measured window.
+struct LayoutResult {
+    seconds: f64,
+    /// Frames each camera's results went out for, in camera order.
+    per_camera: Vec<u64>,
+    /// CPU time of the inference processes, user + system.
+    cpu_s: f64,
+    /// Private memory of the inference processes together, at the end.
+    private_bytes: u64,
+}
+
+impl LayoutResult {
+    fn frames(&self) -> u64 {
+        self.per_camera.iter().sum()
+    }
+    fn frames_per_s(&self) -> f64 {
+        self.frames() as f64 / self.seconds
+    }
+    fn cpu_share(&self) -> f64 {
+        self.cpu_s / self.seconds
+    }
+}
+
+/// CPU time a process has used, user + system, from `/proc/<pid>/stat`.
+fn process_cpu_s(pid: u32) -> Result<f64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat"))?;
+    // The command name may hold spaces: fields count from its closing ')'.
+    let rest = stat.rsplit_once(')').map(|(_, r)| r).unwrap_or("");
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    // utime and stime are fields 14 and 15 of stat(5): 12 and 13 after ')'.
+    // SAFETY: sysconf with a valid name has no preconditions.
+    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as f64;
+    Ok((ticks(11) + ticks(12)) / hz)
+}
+
+/// Runs camera-ingest (every camera at up to 200 Hz, the same frames) and
+/// one inference process per entry of `layout` (the cameras it serves) as
+/// real processes, and counts each camera's results over `stage_seconds`
+/// from the health reports (the stage's, or each camera's where a process
+/// serves several). The window starts once every camera has had a result
+/// and runs on until each has had another, so a slow start or a stalled
+/// machine gives a longer window, not an empty one.
+fn stage_layout(a: &InferenceArgs, layout: &[Vec<String>]) -> Result<LayoutResult> {
+    use farsight_interfaces::msg::StageHealth;
     let dir = std::env::temp_dir().join(format!("farsight-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let prefix = format!("benchinf{}_", std::process::id());
@@ -121,26 +227,23 @@ fn stage_fps(a: &InferenceArgs) -> Result<f64> {
     // The ORFD camera model, one file for every ORFD config.
     let camera_info = crate::graph::repo_file("tests/fixtures/orfd/front.yaml")?;
     let camera_info = std::fs::canonicalize(camera_info)?;
-    std::fs::write(
-        dir.join("inference.toml"),
-        format!(
-            "camera = \"front\"\nmodel_config = {:?}\n",
-            model.display().to_string()
-        ),
-    )?;
-    std::fs::write(
-        dir.join("ingest.toml"),
-        format!(
-            "[[cameras]]\nfolder = {:?}\nrate_hz = 200.0\nloops = 0\n[cameras.model]\nname = \"front\"\ncamera_info = {:?}\n",
+    let cameras: Vec<&String> = layout.iter().flatten().collect();
+    let mut ingest = String::new();
+    for c in &cameras {
+        ingest += &format!(
+            "[[cameras]]\nfolder = {:?}\nrate_hz = 200.0\nloops = 0\ncapture_time = \"publish\"\n[cameras.model]\nname = {c:?}\ncamera_info = {:?}\n",
             frames.display().to_string(),
             camera_info.display().to_string()
-        ),
-    )?;
+        );
+    }
+    std::fs::write(dir.join("ingest.toml"), ingest)?;
     let exe = std::env::current_exe()?;
-    let start = |name: &str, cfg: &str| -> Result<std::process::Child> {
+    let start = |name: &str, instance: &str, cfg: &str| -> Result<std::process::Child> {
         let mut c = Command::new(exe.with_file_name(format!("farsight-{name}")))
             .arg("--config")
             .arg(dir.join(cfg))
+            .arg("--instance")
+            .arg(instance)
             .env("FARSIGHT_IPC_PREFIX", &prefix)
             .env("RUST_LOG", "warn")
             .stdout(Stdio::piped())
@@ -149,7 +252,7 @@ fn stage_fps(a: &InferenceArgs) -> Result<f64> {
         let mut line = String::new();
         BufReader::new(c.stdout.take().expect("stdout")).read_line(&mut line)?;
         if !line.contains("ready") {
-            bail!("farsight-{name} did not start");
+            bail!("farsight-{name} ({instance}) did not start");
         }
         Ok(c)
     };
@@ -161,26 +264,94 @@ fn stage_fps(a: &InferenceArgs) -> Result<f64> {
             queues: None,
         },
     )?;
-    let nav = bus.slice_subscriber(&topics::navigability("front"))?;
-    let mut inference = start("inference", "inference.toml")?;
-    let mut ingest = start("camera-ingest", "ingest.toml")?;
-    // Warm up, then count distinct outputs.
-    std::thread::sleep(Duration::from_secs(2));
-    while nav.latest()?.is_some() {}
-    let t0 = Instant::now();
-    let mut n = 0u64;
-    while t0.elapsed().as_secs_f64() < a.stage_seconds {
-        if nav.latest()?.is_some() {
-            n += 1;
+    // Each camera's count: its own health where a process serves several,
+    // the process's where it serves one.
+    let mut counters = Vec::new();
+    let mut children = Vec::new();
+    for (i, served) in layout.iter().enumerate() {
+        let instance = format!("inference-{i}");
+        let cfg = format!("inference-{i}.toml");
+        let list = if served.len() == 1 {
+            format!("camera = {:?}", served[0])
+        } else {
+            format!("cameras = {served:?}")
+        };
+        std::fs::write(
+            dir.join(&cfg),
+            format!(
+                "{list}\nmodel_config = {:?}\nhealth_rate_hz = 20.0\n",
+                model.display().to_string()
+            ),
+        )?;
+        for c in served {
+            let topic = if served.len() == 1 {
+                instance.clone()
+            } else {
+                format!("{instance}-{c}")
+            };
+            counters.push(bus.subscriber(&topics::health(&topic))?);
         }
-        std::thread::sleep(Duration::from_millis(2));
+        children.push(start("inference", &instance, &cfg)?);
     }
-    let fps = n as f64 / t0.elapsed().as_secs_f64();
-    for c in [&mut ingest, &mut inference] {
+    let mut ingest = start("camera-ingest", "camera-ingest", "ingest.toml")?;
+    let mut last: Vec<Option<StageHealth>> = vec![None; counters.len()];
+    let poll = |last: &mut Vec<Option<StageHealth>>| -> Result<()> {
+        for (slot, sub) in last.iter_mut().zip(&counters) {
+            while let Some(h) = sub.latest()? {
+                *slot = Some(h);
+            }
+        }
+        Ok(())
+    };
+    let give_up = Instant::now() + Duration::from_secs(120);
+    let outputs = |last: &[Option<StageHealth>]| -> Vec<u64> {
+        last.iter()
+            .map(|h| h.map_or(0, |h| h.messages_out))
+            .collect()
+    };
+    // Warm up: every camera has had a result.
+    while outputs(&last).contains(&0) {
+        if Instant::now() > give_up {
+            bail!(
+                "no result from every camera in 120 s (counts {:?})",
+                outputs(&last)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+        poll(&mut last)?;
+    }
+    let pids: Vec<u32> = children.iter().map(std::process::Child::id).collect();
+    let cpu = |pids: &[u32]| -> Result<f64> { pids.iter().map(|&p| process_cpu_s(p)).sum() };
+    let (first, cpu0, t0) = (outputs(&last), cpu(&pids)?, Instant::now());
+    loop {
+        std::thread::sleep(Duration::from_millis(20));
+        poll(&mut last)?;
+        let now = outputs(&last);
+        let all_moved = now.iter().zip(&first).all(|(n, f)| n > f);
+        if t0.elapsed().as_secs_f64() >= a.stage_seconds && all_moved {
+            break;
+        }
+        if Instant::now() > give_up {
+            bail!("a camera had no result in the window (counts {first:?} -> {now:?})");
+        }
+    }
+    let seconds = t0.elapsed().as_secs_f64();
+    let cpu_s = cpu(&pids)? - cpu0;
+    let per_camera = outputs(&last)
+        .iter()
+        .zip(&first)
+        .map(|(n, f)| n - f)
+        .collect();
+    let private_bytes = pids
+        .iter()
+        .filter_map(|&p| crate::memory::of_pid(p))
+        .map(|m| m.private_bytes)
+        .sum();
+    for c in children.iter_mut().chain([&mut ingest]) {
         let _ = c.kill();
         let _ = c.wait();
     }
-    drop(nav);
+    drop(counters);
     drop(bus);
     let _ = std::fs::remove_dir_all(&dir);
     if let Ok(entries) = std::fs::read_dir("/dev/shm") {
@@ -190,5 +361,10 @@ fn stage_fps(a: &InferenceArgs) -> Result<f64> {
             }
         }
     }
-    Ok(fps)
+    Ok(LayoutResult {
+        seconds,
+        per_camera,
+        cpu_s,
+        private_bytes,
+    })
 }
