@@ -137,6 +137,11 @@ pub struct InferenceArgs {
     /// per camera: frames/s, CPU and private memory.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=16))]
     pub cameras: u16,
+    /// Each camera's frame rate in the throughput measurement: above what
+    /// the stage keeps up with, frames/s is its capacity; below it, compare
+    /// the CPU a frame.
+    #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u16).range(1..=1000))]
+    pub camera_rate_hz: u16,
 }
 
 #[derive(Args)]

@@ -106,7 +106,8 @@ pub fn run(a: InferenceArgs) -> Result<()> {
     if a.stage_seconds > 0.0 && a.cameras == 1 {
         let r = stage_layout(&a, &[vec![camera_name(0)]])?;
         println!(
-            "\nstage throughput: camera-ingest at 200 Hz -> farsight-inference -> {:.1} frames/s ({:.0}% of a core)",
+            "\nstage throughput: camera-ingest at {} Hz -> farsight-inference -> {:.1} frames/s ({:.0}% of a core)",
+            a.camera_rate_hz,
             r.frames_per_s(),
             100.0 * r.cpu_share()
         );
@@ -114,8 +115,8 @@ pub fn run(a: InferenceArgs) -> Result<()> {
         let n = usize::from(a.cameras);
         let cameras: Vec<String> = (0..n).map(camera_name).collect();
         println!(
-            "\n{n} cameras (camera-ingest at 200 Hz each), {:.0} s each layout, one run:\n",
-            a.stage_seconds
+            "\n{n} cameras (camera-ingest at {} Hz each), {:.0} s each layout, one run:\n",
+            a.camera_rate_hz, a.stage_seconds
         );
         println!("| layout | frames/s, all cameras | per camera | inference CPU, % of a core | CPU ms a frame | private memory MB |");
         println!("|---|---|---|---|---|---|");
@@ -210,7 +211,7 @@ fn process_cpu_s(pid: u32) -> Result<f64> {
     Ok((ticks(11) + ticks(12)) / hz)
 }
 
-/// Runs camera-ingest (every camera at up to 200 Hz, the same frames) and
+/// Runs camera-ingest (every camera at `camera_rate_hz`, the same frames) and
 /// one inference process per entry of `layout` (the cameras it serves) as
 /// real processes, and counts each camera's results over `stage_seconds`
 /// from the health reports (the stage's, or each camera's where a process
@@ -231,8 +232,9 @@ fn stage_layout(a: &InferenceArgs, layout: &[Vec<String>]) -> Result<LayoutResul
     let mut ingest = String::new();
     for c in &cameras {
         ingest += &format!(
-            "[[cameras]]\nfolder = {:?}\nrate_hz = 200.0\nloops = 0\ncapture_time = \"publish\"\n[cameras.model]\nname = {c:?}\ncamera_info = {:?}\n",
+            "[[cameras]]\nfolder = {:?}\nrate_hz = {}\nloops = 0\ncapture_time = \"publish\"\n[cameras.model]\nname = {c:?}\ncamera_info = {:?}\n",
             frames.display().to_string(),
+            a.camera_rate_hz,
             camera_info.display().to_string()
         );
     }
