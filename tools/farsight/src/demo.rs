@@ -57,6 +57,12 @@ pub struct DemoArgs {
     /// command is newest (as a robot does), instead of lock-step.
     #[arg(long)]
     realtime: bool,
+    /// Lock-step: seconds the simulator waits for the graph's command
+    /// before driving a frame without it (counted in summary.toml as a late
+    /// command). Only a graph that stopped answering should reach it; raise
+    /// it on a machine so loaded that a stage can be starved this long.
+    #[arg(long, default_value_t = 10.0, value_parser = farsight_sim::run::parse_timeout_s)]
+    command_timeout_s: f64,
     /// How many messages of each topic the recorder may fall behind before
     /// it loses one (its queues); 0 reads each topic's latest value.
     #[arg(long, default_value_t = 8)]
@@ -142,6 +148,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
             graph: a.graph,
             max_time_s: a.max_time_s,
             realtime: a.realtime,
+            command_timeout_s: a.command_timeout_s,
             recorder_queue_depth: a.recorder_queue_depth,
             foxglove_port: a.foxglove_port,
         });

@@ -51,6 +51,8 @@ pub struct SimDemo {
     pub graph: Option<PathBuf>,
     pub max_time_s: f64,
     pub realtime: bool,
+    /// Lock-step: how long the simulator waits for each command.
+    pub command_timeout_s: f64,
     pub recorder_queue_depth: usize,
     /// Serve the run live to the Foxglove app on this port.
     pub foxglove_port: Option<u16>,
@@ -318,6 +320,7 @@ pub fn run(d: SimDemo) -> Result<()> {
         cmd.args(["--clock", "realtime"]);
     } else {
         cmd.args(["--await-health", RECORDER]);
+        cmd.args(["--command-timeout-s", &d.command_timeout_s.to_string()]);
     }
     if sim_options.oracle {
         cmd.arg("--oracle");

@@ -89,7 +89,7 @@ pub struct RunArgs {
     /// should reach this, and then costs it per frame. Generous for that
     /// reason: at 0.5 s a machine busy with other work made late commands
     /// and changed the track.
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, value_parser = parse_timeout_s)]
     pub command_timeout_s: f64,
     /// Lock-step: also wait, after the command, for these instances to
     /// report the frame on health/<name> (the recorder, `farsight record
@@ -280,6 +280,16 @@ pub fn parse_near_field(name: &str) -> Result<crate::sensor::CostModel, String> 
     crate::sensor::CostModel::named(name).ok_or_else(|| {
         format!("near-field sensor {name:?}: expected \"true-cost\" or \"height-threshold\"")
     })
+}
+
+/// A wait in seconds from the command line: finite, above 0, at most a day
+/// (a `Duration` cannot hold NaN, a negative or an unbounded wait).
+pub fn parse_timeout_s(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v > 0.0 && v <= 86_400.0 => Ok(v),
+        Ok(v) => Err(format!("{v} s: expected 0 < seconds <= 86400")),
+        Err(e) => Err(format!("{s:?}: {e}")),
+    }
 }
 
 /// Classes a ground robot may drive on (the oracle's navigability).
@@ -545,6 +555,16 @@ pub fn run(a: RunArgs) -> Result<Summary> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_timeout_that_no_duration_holds_is_refused_naming_the_value() {
+        assert_eq!(parse_timeout_s("120"), Ok(120.0));
+        for bad in ["nan", "-1", "0", "inf", "1e9"] {
+            let e = parse_timeout_s(bad).unwrap_err();
+            assert!(e.contains("expected 0 < seconds <= 86400"), "{bad}: {e}");
+        }
+        assert!(parse_timeout_s("soon").unwrap_err().contains("\"soon\""));
+    }
 
     #[test]
     fn reported_pose_noise_has_the_asked_spread_and_none_means_the_truth() {
