@@ -124,16 +124,17 @@ fn the_default_demo_runs_the_shipped_fitam_model_in_the_graph_and_leaves_the_tra
 }
 
 /// Runs `farsight demo` with `args` into a fresh folder; returns the folder.
-/// Lock-step with a 120 s command timeout: these tests compare tracks, and
+/// Lock-step with a 60 s command timeout: these tests compare tracks, and
 /// a run that drove a frame without its command could not match, so on a
 /// machine loaded enough to starve a stage for the default 10 s the
-/// simulator waits rather than drive on (summary.toml counts any late one).
+/// simulator waits rather than drive on (summary.toml counts any late one;
+/// a stage that died costs 60 s a frame, inside the demo's 240 s).
 fn demo(ns: &Namespace, name: &str, args: &[&str]) -> std::path::PathBuf {
     let out = ns.write("placeholder", "").with_file_name(name);
     let mut all = vec![
         "demo",
         "--command-timeout-s",
-        "120",
+        "60",
         "--out",
         out.to_str().unwrap(),
     ];

@@ -344,8 +344,6 @@ pub fn orfd_ingest_toml(extra: &str) -> String {
     )
 }
 
-/// `s` as a TOML string, written by the TOML serializer (Rust's `{:?}`
-/// quoting is not TOML for control characters).
 /// The files of a folder of `../shared/data/orfd` (`image_data`,
 /// `dense_depth`), sorted: every ORFD test reads the frames in one order.
 pub fn orfd_files(folder: &str) -> Vec<PathBuf> {
@@ -359,6 +357,8 @@ pub fn orfd_files(folder: &str) -> Vec<PathBuf> {
     files
 }
 
+/// `s` as a TOML string, written by the TOML serializer (Rust's `{:?}`
+/// quoting is not TOML for control characters).
 pub fn toml_string(s: &str) -> String {
     toml::Value::String(s.to_string()).to_string()
 }

@@ -133,8 +133,19 @@ impl OutputPlan {
 /// the shape leaves height or width open (segmentation models answer at
 /// their input's size).
 fn image_px(spec: &OutputSpec, shape: Option<&Vec<i64>>, input: &InputSpec) -> usize {
-    let fixed: Option<Vec<usize>> =
-        shape.and_then(|s| s.iter().map(|&d| usize::try_from(d).ok()).collect());
+    // An open leading (batch) dimension is one frame's worth.
+    let fixed: Option<Vec<usize>> = shape.and_then(|s| {
+        s.iter()
+            .enumerate()
+            .map(|(i, &d)| {
+                if i == 0 && d < 0 {
+                    Some(1)
+                } else {
+                    usize::try_from(d).ok()
+                }
+            })
+            .collect()
+    });
     fixed
         .and_then(|s| crate::postprocess::image_dims(spec, &s).ok())
         .map_or(input.width as usize * input.height as usize, |(h, w, _)| {
@@ -762,6 +773,12 @@ mod tests {
         assert_eq!(
             exact.navigability_px, None,
             "no class table: no navigability"
+        );
+        let batched = vec![vec![-1, 2, 90, 160]];
+        assert_eq!(
+            OutputPlan::onnx(&m, &batched, false).classes_px,
+            Some(90 * 160),
+            "an open batch dimension is one frame's worth"
         );
         let dynamic = vec![vec![1, 2, -1, -1]];
         assert_eq!(

@@ -198,8 +198,11 @@ impl Backend {
                 let results = frames
                     .iter()
                     .map(|(h, f)| {
-                        let r = self.run(h, f, table, timings);
-                        total.inference_s += timings.inference_s;
+                        // Fresh per frame: one that fails early leaves none
+                        // of an earlier frame's time behind.
+                        let mut t = Timings::default();
+                        let r = self.run(h, f, table, &mut t);
+                        total += t;
                         r
                     })
                     .collect();

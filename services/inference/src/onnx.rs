@@ -97,6 +97,14 @@ pub struct Timings {
     pub postprocess_s: f64,
 }
 
+impl std::ops::AddAssign for Timings {
+    fn add_assign(&mut self, t: Timings) {
+        self.preprocess_s += t.preprocess_s;
+        self.inference_s += t.inference_s;
+        self.postprocess_s += t.postprocess_s;
+    }
+}
+
 /// A loaded model with its config and reusable input buffer.
 pub struct OnnxModel {
     session: Session,
@@ -127,6 +135,15 @@ fn float_tensor_shape<'a>(
             name: name.to_string(),
             ty: format!("{other:?}"),
         }),
+    }
+}
+
+/// The rank of an output of `kind` with its leading batch dimension.
+fn batched_rank(kind: OutputKind) -> usize {
+    match kind {
+        OutputKind::FarFieldEnsemble => 5,
+        OutputKind::TrajectoryLogLikelihood => 2,
+        _ => 4,
     }
 }
 
@@ -286,7 +303,14 @@ impl OnnxModel {
         let len = want.iter().product::<i64>() as usize;
         // Batching needs the batch dimension open on both sides: a model
         // exported for one frame ([1, ...]) runs its frames one at a time.
-        let batches = model_shape[0] < 0 && output_shapes.iter().all(|s| s.len() > 1 && s[0] < 0);
+        // An output has a batch dimension only at its kind's full rank (a
+        // far-field ensemble may come without one).
+        let batches = model_shape[0] < 0
+            && config
+                .outputs
+                .iter()
+                .zip(&output_shapes)
+                .all(|(spec, s)| s.len() == batched_rank(spec.kind) && s[0] < 0);
         Ok(Self {
             session,
             config: config.clone(),
@@ -345,10 +369,7 @@ impl OnnxModel {
         let mut total = Timings::default();
         let mut results = Vec::with_capacity(frames.len());
         for chunk in frames.chunks(group) {
-            let t = self.run_group(chunk, &mut post, &mut results);
-            total.preprocess_s += t.preprocess_s;
-            total.inference_s += t.inference_s;
-            total.postprocess_s += t.postprocess_s;
+            total += self.run_group(chunk, &mut post, &mut results);
         }
         *timings = total;
         results

@@ -33,11 +33,6 @@ pub fn phase_medians(
     frames_dir: &std::path::Path,
     runs: usize,
 ) -> Result<PhaseMedians> {
-    let table = config
-        .class_table_path()
-        .map(|p| ClassTableFile::open(&p))
-        .transpose()?;
-    let mut backend = Backend::Onnx(Box::new(OnnxModel::load(config)?));
     let mut files: Vec<_> = std::fs::read_dir(frames_dir)
         .with_context(|| format!("reading {}", frames_dir.display()))?
         .flatten()
@@ -52,6 +47,23 @@ pub fn phase_medians(
         .iter()
         .map(|f| farsight_imaging::decode_png(&std::fs::read(f)?).map_err(anyhow::Error::from))
         .collect::<Result<_>>()?;
+    phase_medians_on(config, &frames, runs)
+}
+
+/// [`phase_medians`] on frames in memory (the simulator's, as a tap saw them).
+pub fn phase_medians_on(
+    config: &ModelConfig,
+    frames: &[(farsight_interfaces::msg::ImageHeader, Vec<u8>)],
+    runs: usize,
+) -> Result<PhaseMedians> {
+    if frames.is_empty() {
+        bail!("no frames to time the model on");
+    }
+    let table = config
+        .class_table_path()
+        .map(|p| ClassTableFile::open(&p))
+        .transpose()?;
+    let mut backend = Backend::Onnx(Box::new(OnnxModel::load(config)?));
     let (mut pre, mut inf, mut post) = (vec![], vec![], vec![]);
     for i in 0..runs.max(1) + 3 {
         let (h, f) = &frames[i % frames.len()];
@@ -72,6 +84,12 @@ pub fn phase_medians(
 }
 
 pub fn run(a: InferenceArgs) -> Result<()> {
+    if !(0.0..=86_400.0).contains(&a.stage_seconds) {
+        bail!(
+            "--stage-seconds {}: expected 0 (skip) to 86400 s",
+            a.stage_seconds
+        );
+    }
     let config = ModelConfig::load(&a.model_config)?;
     let m = phase_medians(&config, &a.frames, a.runs)?;
     let (fw, fh) = m.frame;
@@ -129,7 +147,7 @@ pub fn run(a: InferenceArgs) -> Result<()> {
             (
                 format!(
                     "one process, one session ({})",
-                    if r_batches(&config) {
+                    if model_batches(&config) {
                         "batched"
                     } else {
                         "frames one at a time"
@@ -163,7 +181,7 @@ pub fn run(a: InferenceArgs) -> Result<()> {
 }
 
 /// Whether the model runs a step's frames as one batch.
-fn r_batches(config: &ModelConfig) -> bool {
+fn model_batches(config: &ModelConfig) -> bool {
     OnnxModel::load(config).is_ok_and(|m| m.batches())
 }
 
@@ -201,14 +219,45 @@ impl LayoutResult {
 /// CPU time a process has used, user + system, from `/proc/<pid>/stat`.
 fn process_cpu_s(pid: u32) -> Result<f64> {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat"))?;
-    // The command name may hold spaces: fields count from its closing ')'.
-    let rest = stat.rsplit_once(')').map(|(_, r)| r).unwrap_or("");
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    // utime and stime are fields 14 and 15 of stat(5): 12 and 13 after ')'.
+    let ticks = cpu_ticks(&stat).with_context(|| format!("/proc/{pid}/stat: {stat:?}"))?;
     // SAFETY: sysconf with a valid name has no preconditions.
     let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as f64;
-    Ok((ticks(11) + ticks(12)) / hz)
+    Ok(ticks as f64 / hz)
+}
+
+/// utime + stime (clock ticks) of a `/proc/<pid>/stat` line: fields 14 and
+/// 15 of proc(5), counted after the command name, which may hold spaces and
+/// parentheses (so from its last ')').
+fn cpu_ticks(stat: &str) -> Option<u64> {
+    let (_, rest) = stat.rsplit_once(')')?;
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    // After ')': state is field 3, so fields 14 and 15 are 0-based 11 and 12.
+    Some(f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?)
+}
+
+/// The processes of one layout and their scratch files, stopped and
+/// removed however the measurement ends.
+struct Launched {
+    children: Vec<std::process::Child>,
+    dir: std::path::PathBuf,
+    prefix: String,
+}
+
+impl Drop for Launched {
+    fn drop(&mut self) {
+        for c in &mut self.children {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+        let _ = std::fs::remove_dir_all(&self.dir);
+        if let Ok(entries) = std::fs::read_dir("/dev/shm") {
+            for e in entries.flatten() {
+                if e.file_name().to_string_lossy().starts_with(&self.prefix) {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
+    }
 }
 
 /// Runs camera-ingest (every camera at `camera_rate_hz`, the same frames) and
@@ -223,6 +272,13 @@ fn stage_layout(a: &InferenceArgs, layout: &[Vec<String>]) -> Result<LayoutResul
     let dir = std::env::temp_dir().join(format!("farsight-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let prefix = format!("benchinf{}_", std::process::id());
+    // Declared before the bus, so dropped after it: children stopped and
+    // shared memory removed on every way out, an error's too.
+    let mut launched = Launched {
+        children: Vec::new(),
+        dir: dir.clone(),
+        prefix: prefix.clone(),
+    };
     let frames = std::fs::canonicalize(&a.frames)?;
     let model = std::fs::canonicalize(&a.model_config)?;
     // The ORFD camera model, one file for every ORFD config.
@@ -269,7 +325,6 @@ fn stage_layout(a: &InferenceArgs, layout: &[Vec<String>]) -> Result<LayoutResul
     // Each camera's count: its own health where a process serves several,
     // the process's where it serves one.
     let mut counters = Vec::new();
-    let mut children = Vec::new();
     for (i, served) in layout.iter().enumerate() {
         let instance = format!("inference-{i}");
         let cfg = format!("inference-{i}.toml");
@@ -293,9 +348,16 @@ fn stage_layout(a: &InferenceArgs, layout: &[Vec<String>]) -> Result<LayoutResul
             };
             counters.push(bus.subscriber(&topics::health(&topic))?);
         }
-        children.push(start("inference", &instance, &cfg)?);
+        launched.children.push(start("inference", &instance, &cfg)?);
     }
-    let mut ingest = start("camera-ingest", "camera-ingest", "ingest.toml")?;
+    let pids: Vec<u32> = launched
+        .children
+        .iter()
+        .map(std::process::Child::id)
+        .collect();
+    launched
+        .children
+        .push(start("camera-ingest", "camera-ingest", "ingest.toml")?);
     let mut last: Vec<Option<StageHealth>> = vec![None; counters.len()];
     let poll = |last: &mut Vec<Option<StageHealth>>| -> Result<()> {
         for (slot, sub) in last.iter_mut().zip(&counters) {
@@ -305,7 +367,7 @@ fn stage_layout(a: &InferenceArgs, layout: &[Vec<String>]) -> Result<LayoutResul
         }
         Ok(())
     };
-    let give_up = Instant::now() + Duration::from_secs(120);
+    let warm_up_until = Instant::now() + Duration::from_secs(120);
     let outputs = |last: &[Option<StageHealth>]| -> Vec<u64> {
         last.iter()
             .map(|h| h.map_or(0, |h| h.messages_out))
@@ -313,7 +375,7 @@ fn stage_layout(a: &InferenceArgs, layout: &[Vec<String>]) -> Result<LayoutResul
     };
     // Warm up: every camera has had a result.
     while outputs(&last).contains(&0) {
-        if Instant::now() > give_up {
+        if Instant::now() > warm_up_until {
             bail!(
                 "no result from every camera in 120 s (counts {:?})",
                 outputs(&last)
@@ -322,9 +384,9 @@ fn stage_layout(a: &InferenceArgs, layout: &[Vec<String>]) -> Result<LayoutResul
         std::thread::sleep(Duration::from_millis(20));
         poll(&mut last)?;
     }
-    let pids: Vec<u32> = children.iter().map(std::process::Child::id).collect();
     let cpu = |pids: &[u32]| -> Result<f64> { pids.iter().map(|&p| process_cpu_s(p)).sum() };
     let (first, cpu0, t0) = (outputs(&last), cpu(&pids)?, Instant::now());
+    let window_until = t0 + Duration::from_secs_f64(a.stage_seconds) + Duration::from_secs(120);
     loop {
         std::thread::sleep(Duration::from_millis(20));
         poll(&mut last)?;
@@ -333,7 +395,7 @@ fn stage_layout(a: &InferenceArgs, layout: &[Vec<String>]) -> Result<LayoutResul
         if t0.elapsed().as_secs_f64() >= a.stage_seconds && all_moved {
             break;
         }
-        if Instant::now() > give_up {
+        if Instant::now() > window_until {
             bail!("a camera had no result in the window (counts {first:?} -> {now:?})");
         }
     }
@@ -349,24 +411,29 @@ fn stage_layout(a: &InferenceArgs, layout: &[Vec<String>]) -> Result<LayoutResul
         .filter_map(|&p| crate::memory::of_pid(p))
         .map(|m| m.private_bytes)
         .sum();
-    for c in children.iter_mut().chain([&mut ingest]) {
-        let _ = c.kill();
-        let _ = c.wait();
-    }
     drop(counters);
     drop(bus);
-    let _ = std::fs::remove_dir_all(&dir);
-    if let Ok(entries) = std::fs::read_dir("/dev/shm") {
-        for e in entries.flatten() {
-            if e.file_name().to_string_lossy().starts_with(&prefix) {
-                let _ = std::fs::remove_file(e.path());
-            }
-        }
-    }
+    drop(launched);
     Ok(LayoutResult {
         seconds,
         per_camera,
         cpu_s,
         private_bytes,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::cpu_ticks;
+
+    #[test]
+    fn cpu_ticks_are_utime_plus_stime_whatever_the_command_name() {
+        // proc(5): pid (comm) state ppid pgrp session tty_nr tpgid flags
+        // minflt cminflt majflt cmajflt utime stime ...
+        let stat =
+            "4242 (farsight-inf) (x) S 1 4242 4242 0 -1 4194560 900 0 0 0 1234 56 0 0 20 0 9 0";
+        assert_eq!(cpu_ticks(stat), Some(1234 + 56));
+        assert_eq!(cpu_ticks("4242 (cut short) S 1 2"), None);
+        assert_eq!(cpu_ticks("no parenthesis"), None);
+    }
 }
