@@ -1,22 +1,25 @@
-//! `farsight bench e2e` runs the ORFD POVNav graph as real processes and
-//! times each frame from capture to every topic on its path: the table
-//! must hold every hop, latencies that grow along the path, and each
-//! stage's memory. Paced by the frames themselves (camera-ingest waits for
-//! each navigability image), so a busy machine gives fewer frames, not a
-//! failure; only the presence and order of figures are checked.
+//! `farsight bench e2e` runs a chain's graph as real processes (the ORFD
+//! POVNav graph; the simulator's FITAM graph) and times each frame from
+//! ingest to every topic on its path: the table must hold every hop,
+//! latencies that grow along the path, and each stage's memory. Paced by
+//! the frames themselves (camera-ingest waits for each navigability image;
+//! the simulator waits for each command), so a busy machine gives fewer
+//! frames, not a failure; only the presence and order of figures are
+//! checked.
 
 use farsight_tests::{bin, repo_root};
 
-#[test]
-fn the_e2e_bench_times_every_hop_from_capture_to_command() {
-    let out_dir = std::env::temp_dir().join(format!("farsight-e2e-{}", std::process::id()));
+/// Runs `farsight bench e2e` with a short warm-up and measurement, the
+/// chain's own `args` before them; returns its stdout, once it succeeded.
+fn bench_e2e(name: &str, args: &[&str], seconds: &str) -> String {
+    let out_dir = std::env::temp_dir().join(format!("farsight-{name}-{}", std::process::id()));
     let out = std::process::Command::new(bin("farsight"))
         .current_dir(repo_root())
+        .args(["bench", "e2e"])
+        .args(args)
         .args([
-            "bench",
-            "e2e",
             "--seconds",
-            "4",
+            seconds,
             "--warm-up-s",
             "1",
             "--inference-runs",
@@ -26,9 +29,16 @@ fn the_e2e_bench_times_every_hop_from_capture_to_command() {
         .arg(&out_dir)
         .output()
         .expect("farsight bench e2e runs");
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stdout}\n{stderr}");
+    let _ = std::fs::remove_dir_all(&out_dir);
+    stdout
+}
+
+#[test]
+fn the_e2e_bench_times_every_hop_from_capture_to_command() {
+    let stdout = bench_e2e("e2e", &[], "4");
     let median = |topic: &str| -> f64 {
         let row = stdout
             .lines()
@@ -65,5 +75,47 @@ fn the_e2e_bench_times_every_hop_from_capture_to_command() {
         let private: f64 = row.split('|').nth(2).unwrap().trim().parse().unwrap();
         assert!(private > 1.0, "{row}");
     }
-    let _ = std::fs::remove_dir_all(&out_dir);
+}
+
+/// `--chain fitam-sim`: graphs/sim/fitam.toml as processes in the
+/// lock-step simulator, each frame timed from when the simulator published
+/// it through far field, polar bins, the fused costmap and D* Lite's path to
+/// the command. Lock-step, so a busy machine slows the simulated clock and
+/// nothing is late; only the presence and order of figures are checked.
+#[test]
+fn the_e2e_bench_times_the_fitam_chain_in_the_simulator() {
+    let stdout = bench_e2e("e2e-fitam", &["--chain", "fitam-sim"], "3");
+    let path: Vec<f64> = [
+        ("camera/front/image", "farsight-sim"),
+        ("perception/front/far_field", "inference"),
+        ("bins/polar", "bin-projection"),
+        ("costmap/fused", "costmap-fusion"),
+        ("nav/path/planned", "subgoal-selection"),
+        ("cmd/velocity", "velocity-servoing"),
+    ]
+    .iter()
+    .map(|(topic, stage)| {
+        let row = stdout
+            .lines()
+            .find(|l| l.starts_with(&format!("| {topic} | {stage} |")))
+            .unwrap_or_else(|| panic!("no row for {topic}:\n{stdout}"));
+        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+        assert!(cells[3].parse::<usize>().unwrap() > 0, "{row}");
+        cells[4].parse().unwrap()
+    })
+    .collect();
+    assert!(path.windows(2).all(|w| w[0] <= w[1]), "{path:?}\n{stdout}");
+    assert!(path[5] > 0.0, "{stdout}");
+    assert!(
+        stdout.contains("event-driven: inference, bin-projection, costmap-fusion, subgoal-selection, velocity-servoing"),
+        "{stdout}"
+    );
+    for stage in ["inference", "costmap-fusion", "subgoal-selection"] {
+        assert!(
+            stdout
+                .lines()
+                .any(|l| l.starts_with(&format!("| {stage} | ")) && l.matches('|').count() == 4),
+            "no memory row for {stage}:\n{stdout}"
+        );
+    }
 }

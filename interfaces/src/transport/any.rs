@@ -97,6 +97,8 @@ pub trait FixedSubscriber {
     fn take_message(&self) -> Result<Option<Message>, TransportError>;
     /// Every message waiting, oldest first, wire-encoded with its stamp.
     fn take_all_wire(&self) -> Result<Vec<(Stamp, Vec<u8>)>, TransportError>;
+    /// The newest message's stamp since the last call, nothing encoded.
+    fn take_stamp(&self) -> Result<Option<Stamp>, TransportError>;
     fn skips(&self) -> SkipCounter;
 }
 
@@ -115,6 +117,9 @@ impl<M: IpcMessage + Serialize + Into<Message>> FixedSubscriber for Subscriber<M
     }
     fn take_message(&self) -> Result<Option<Message>, TransportError> {
         Ok(self.latest()?.map(Into::into))
+    }
+    fn take_stamp(&self) -> Result<Option<Stamp>, TransportError> {
+        Ok(self.latest()?.map(|m| m.stamp()))
     }
     fn take_all_wire(&self) -> Result<Vec<(Stamp, Vec<u8>)>, TransportError> {
         self.drain()?
@@ -257,6 +262,23 @@ impl AnySubscriber {
             Self::Polar(s) => slice_wire(s),
             Self::Costmap(s) => slice_wire(s),
             Self::Fixed(s) => s.take_wire(),
+        }
+    }
+
+    /// The newest message's stamp since the last call, read in shared
+    /// memory: a tap that times frames copies none of them.
+    pub fn take_stamp(&self) -> Result<Option<Stamp>, TransportError> {
+        fn header<H: IpcHeader, E: super::ipc::IpcElem>(
+            sub: &SliceSubscriber<H, E>,
+        ) -> Result<Option<Stamp>, TransportError> {
+            Ok(sub.latest()?.map(|s| s.header().stamp()))
+        }
+        match self {
+            Self::Image(s) => header(s),
+            Self::Tensor(s) => header(s),
+            Self::Polar(s) => header(s),
+            Self::Costmap(s) => header(s),
+            Self::Fixed(s) => s.take_stamp(),
         }
     }
 

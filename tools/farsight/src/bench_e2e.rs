@@ -1,11 +1,17 @@
-//! `farsight bench e2e` (issue 21 item 4, first part): the POVNav chain of
-//! `graphs/orfd.toml` as the robot runs it, every stage its own process
-//! (`farsight demo --orfd --loops 0`, in a shared-memory namespace of its
-//! own), on the real ORFD frames, timed from each frame's capture time (the
-//! ingest time: camera-ingest stamps replayed frames as they go out) to
-//! when each topic on the path carries it: per hop and capture-to-command,
-//! median and p99, beside the inference stage's phases alone. And each
-//! stage's private and shared memory ([`crate::memory`]).
+//! `farsight bench e2e` (issue 21 item 4): a chain as the robot runs it,
+//! every stage its own process (`farsight demo`, in a shared-memory
+//! namespace of its own), timed from each frame's ingest to when each topic
+//! on the path carries it: per hop and capture-to-command, median and p99,
+//! beside the inference stage's phases alone. And each stage's private and
+//! shared memory ([`crate::memory`]). Two chains:
+//!
+//! - POVNav, `graphs/orfd.toml` on the real ORFD frames
+//!   (`farsight demo --orfd --loops 0`): timed from each frame's capture
+//!   time, which is its ingest time (camera-ingest stamps replayed frames
+//!   as they go out);
+//! - FITAM, `graphs/sim/fitam.toml` in the simulator, lock-step
+//!   (`farsight demo --graph`): simulated time is on the stamps, so each
+//!   frame is timed from when the tap saw the simulator publish it.
 //!
 //! The tap is one more subscriber asleep on a WaitSet on every topic of
 //! the path; it reads the clock as it wakes and each message's stamp in
@@ -18,10 +24,11 @@ use crate::memory::{self, ProcessMemory};
 use anyhow::{bail, Context, Result};
 use farsight_inference::model_config::ModelConfig;
 use farsight_interfaces::clock::{Clock, WallClock};
-use farsight_interfaces::msg::Stamp;
+use farsight_interfaces::message::Message;
+use farsight_interfaces::msg::ImageHeader;
 use farsight_interfaces::topics;
+use farsight_interfaces::transport::any::AnySubscriber;
 use farsight_interfaces::transport::ipc::Bus;
-use farsight_interfaces::transport::Stamped;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
@@ -41,17 +48,59 @@ pub struct E2eArgs {
     /// The demo's output folder (configs, logs, recording).
     #[arg(long, default_value = "out/bench-e2e")]
     pub out: PathBuf,
+    /// Which chain to run.
+    #[arg(long, value_enum, default_value = "povnav-orfd")]
+    pub chain: Chain,
+    /// fitam-sim: the simulator's scenario (the default is a long drive,
+    /// so the graph is still running when the measurement ends).
+    #[arg(long, default_value = "road-forest")]
+    pub scenario: String,
 }
 
-const CAMERA: &str = "front";
+/// The chains `bench e2e` runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Chain {
+    /// graphs/orfd.toml on the ORFD frames: camera -> TwinLiteNet -> POVNav -> servo.
+    PovnavOrfd,
+    /// graphs/sim/fitam.toml in the simulator, lock-step: camera -> FITAM far
+    /// field -> polar bins -> Kalman fusion -> D* Lite path -> servo.
+    FitamSim,
+}
 
-/// The path of a frame, in order, with the stage that produced each topic.
-const PATH: [(&str, &str); 4] = [
-    ("camera/front/image", "camera-ingest"),
-    ("perception/front/navigability", "inference"),
-    ("nav/subgoal", "subgoal-selection"),
-    ("cmd/velocity", "velocity-servoing"),
-];
+impl Chain {
+    fn graph(self) -> &'static str {
+        match self {
+            Chain::PovnavOrfd => "graphs/orfd.toml",
+            Chain::FitamSim => "graphs/sim/fitam.toml",
+        }
+    }
+
+    /// The path of a frame, in order, with the stage that produced each topic.
+    fn path(self) -> &'static [(&'static str, &'static str)] {
+        match self {
+            Chain::PovnavOrfd => &[
+                ("camera/front/image", "camera-ingest"),
+                ("perception/front/navigability", "inference"),
+                ("nav/subgoal", "subgoal-selection"),
+                ("cmd/velocity", "velocity-servoing"),
+            ],
+            Chain::FitamSim => &[
+                ("camera/front/image", "farsight-sim"),
+                ("perception/front/far_field", "inference"),
+                ("bins/polar", "bin-projection"),
+                ("costmap/fused", "costmap-fusion"),
+                ("nav/path/planned", "subgoal-selection"),
+                ("cmd/velocity", "velocity-servoing"),
+            ],
+        }
+    }
+
+    /// Whether frames carry their ingest time as capture time (the wall
+    /// clock), or simulated time (then the tap's first sight is the ingest).
+    fn stamps_are_ingest_time(self) -> bool {
+        self == Chain::PovnavOrfd
+    }
+}
 
 /// Per topic, per frame sequence: when it first arrived, ms after capture.
 type Arrivals = Vec<BTreeMap<u64, f64>>;
@@ -62,7 +111,7 @@ fn quantile(v: &mut [f64], q: f64) -> f64 {
 }
 
 pub fn run(a: E2eArgs) -> Result<()> {
-    let graph = crate::graph::repo_file("graphs/orfd.toml")?;
+    let graph = crate::graph::repo_file(a.chain.graph())?;
     let graph_text = std::fs::read_to_string(&graph)?;
     let doc: toml::Value = toml::from_str(&graph_text)?;
     let node = |name: &str| {
@@ -75,9 +124,10 @@ pub fn run(a: E2eArgs) -> Result<()> {
             .and_then(|v| v.get("config"))
             .cloned()
     };
+    let shown = a.chain.graph();
     let model_config = node("inference")
         .and_then(|c| c.get("model_config")?.as_str().map(str::to_string))
-        .context("graphs/orfd.toml: the inference node names no model_config")?;
+        .with_context(|| format!("{shown}: the inference node names no model_config"))?;
     let servo = node("velocity-servoing");
     let servo_timing = ServoTiming {
         // A key the graph leaves out has the stage's default.
@@ -91,42 +141,62 @@ pub fn run(a: E2eArgs) -> Result<()> {
             .as_ref()
             .and_then(|c| c.get("command_on_input")?.as_bool())
             .unwrap_or(false),
+        on_stamps: servo
+            .as_ref()
+            .and_then(|c| c.get("clock")?.as_str().map(|c| c == "stamps"))
+            .unwrap_or(false),
     };
-    let frames_folder = node("camera-ingest")
-        .and_then(|c| {
-            c.get("cameras")?
-                .get(0)?
-                .get("folder")?
-                .as_str()
-                .map(str::to_string)
-        })
-        .context("graphs/orfd.toml: camera-ingest names no frame folder")?;
     let graph_dir = graph.parent().unwrap_or(std::path::Path::new("."));
-    let frames = graph_dir.join(frames_folder);
-    eprintln!("inference alone: {} frames ...", a.inference_runs);
-    let model_path = graph_dir.join(&model_config);
-    let alone = crate::bench_inference::phase_medians(
-        &ModelConfig::load(&model_path)?,
-        &frames,
-        a.inference_runs,
-    )?;
+    let model = ModelConfig::load(&graph_dir.join(&model_config))?;
+    let alone = match a.chain {
+        Chain::PovnavOrfd => {
+            let frames_folder = node("camera-ingest")
+                .and_then(|c| {
+                    c.get("cameras")?
+                        .get(0)?
+                        .get("folder")?
+                        .as_str()
+                        .map(str::to_string)
+                })
+                .with_context(|| format!("{shown}: camera-ingest names no frame folder"))?;
+            eprintln!("inference alone: {} frames ...", a.inference_runs);
+            Some(crate::bench_inference::phase_medians(
+                &model,
+                &graph_dir.join(frames_folder),
+                a.inference_runs,
+            )?)
+        }
+        // Timed on the frames the tap copies from the run.
+        Chain::FitamSim => None,
+    };
 
     let prefix = format!("benche2e{}_", std::process::id());
     std::fs::create_dir_all(&a.out)?;
     let log = std::fs::File::create(a.out.join("demo.log"))?;
+    let mut demo = Command::new(std::env::current_exe()?);
+    match a.chain {
+        Chain::PovnavOrfd => demo.args(["demo", "--orfd", "--loops", "0"]),
+        // Long enough to outlast the measurement; lock-step, so a busy
+        // machine slows the simulated clock, it is never late.
+        Chain::FitamSim => demo
+            .args(["demo", "--graph"])
+            .arg(&graph)
+            .args(["--scenario", &a.scenario, "--max-time-s", "100000"])
+            .args(["--command-timeout-s", "120"]),
+    };
     eprintln!(
-        "starting the graph (farsight demo --orfd --loops 0, its errors in {}) ...",
+        "starting the graph (farsight demo, {shown}, its errors in {}) ...",
         a.out.join("demo.log").display()
     );
-    let mut demo = Command::new(std::env::current_exe()?)
-        .args(["demo", "--orfd", "--loops", "0", "--out"])
+    let mut demo = demo
+        .arg("--out")
         .arg(&a.out)
         .env("FARSIGHT_IPC_PREFIX", &prefix)
         .stdout(Stdio::null())
         .stderr(log)
         .stdin(Stdio::null())
         .spawn()
-        .context("starting farsight demo --orfd")?;
+        .context("starting farsight demo")?;
     let result = measure(&a, &prefix);
     // SIGINT, as Ctrl-C: the demo stops its graph and exits.
     // SAFETY: kill(2) on our own child's pid.
@@ -139,69 +209,102 @@ pub fn run(a: E2eArgs) -> Result<()> {
         let _ = demo.kill();
         let _ = demo.wait();
     }
-    let (arrivals, memory, span_s) = result?;
-    print_report(&arrivals, &memory, span_s, &alone, servo_timing);
+    let m = result?;
+    let alone = match alone {
+        Some(alone) => alone,
+        None => {
+            eprintln!(
+                "inference alone: {} runs on {} frames of the run ...",
+                a.inference_runs,
+                m.frames.len()
+            );
+            crate::bench_inference::phase_medians_on(&model, &m.frames, a.inference_runs)?
+        }
+    };
+    print_report(a.chain, &m, &alone, servo_timing);
     Ok(())
 }
 
+/// What the tap saw.
+struct Measured {
+    arrivals: Arrivals,
+    memory: BTreeMap<String, ProcessMemory>,
+    span_s: f64,
+    /// The first frames of the path's first topic, copied (only where the
+    /// inference-alone row needs them: the simulator's frames).
+    frames: Vec<(ImageHeader, Vec<u8>)>,
+}
+
 /// Taps the path until `seconds` of frames have passed through it.
-fn measure(a: &E2eArgs, prefix: &str) -> Result<(Arrivals, BTreeMap<String, ProcessMemory>, f64)> {
+fn measure(a: &E2eArgs, prefix: &str) -> Result<Measured> {
+    let path = a.chain.path();
     let bus = Bus::open_with("bench-e2e", &crate::bench::bench_settings(prefix))?;
-    // Typed ports, read in place: the tap copies no frame out of shared
-    // memory, so it takes no CPU from the stages it times.
-    let image = bus.slice_subscriber(&topics::camera_image(CAMERA))?;
-    let navigability = bus.slice_subscriber(&topics::navigability(CAMERA))?;
-    let subgoal = bus.subscriber(&topics::subgoal())?;
-    let command = bus.subscriber(&topics::velocity_command())?;
-    debug_assert_eq!(
-        [
-            image.topic(),
-            navigability.topic(),
-            subgoal.topic(),
-            command.topic()
-        ],
-        PATH.map(|(t, _)| t)
-    );
-    let newest_stamps = || -> Result<[Option<Stamp>; 4]> {
-        Ok([
-            image.latest()?.map(|s| s.header().stamp),
-            navigability.latest()?.map(|s| s.header().stamp),
-            subgoal.latest()?.map(|m| m.stamp()),
-            command.latest()?.map(|m| m.stamp()),
-        ])
-    };
-    let health: Vec<_> = PATH
+    // Stamps read in shared memory: the tap copies no frame out, so it
+    // takes no CPU from the stages it times.
+    let subs: Vec<AnySubscriber> = path
         .iter()
+        .map(|(t, _)| AnySubscriber::open(&bus, t))
+        .collect::<Result<_, _>>()?;
+    let health: Vec<_> = path
+        .iter()
+        .filter(|(_, s)| *s != "farsight-sim")
         .map(|(_, s)| bus.subscriber(&topics::health(s)))
         .collect::<Result<_, _>>()?;
-    let listeners = [
-        image.listener(),
-        navigability.listener(),
-        subgoal.listener(),
-        command.listener(),
-    ];
-    let mut arrivals: Arrivals = vec![BTreeMap::new(); PATH.len()];
+    let listeners: Vec<_> = subs.iter().map(AnySubscriber::listener).collect();
+    let copy_frames = !a.chain.stamps_are_ingest_time();
+    let mut frames = Vec::new();
+    let mut arrivals: Arrivals = vec![BTreeMap::new(); path.len()];
+    // Per frame: its ingest time on the wall clock.
+    let mut ingest_ns: BTreeMap<u64, u64> = BTreeMap::new();
     let mut pids: BTreeMap<String, u32> = BTreeMap::new();
     let started = Instant::now();
     let mut first_command: Option<Instant> = None;
+    let mut last_command = Instant::now();
     let mut measuring_since: Option<(Instant, u64)> = None;
     let mut newest_frame = 0u64;
+    let mut ended = false;
+    // The stages' memory as measuring starts, in case the run ends (and
+    // its processes with it) before the measurement does.
+    let mut memory_at_start = BTreeMap::new();
     crate::bench::on_each_wake(&listeners, Some(Duration::from_millis(100)), || {
         let now_ns = WallClock.now_ns();
-        for (k, stamp) in newest_stamps()?.into_iter().enumerate() {
-            if let Some(stamp) = stamp {
-                let ms = now_ns.saturating_sub(stamp.capture_time_ns) as f64 * 1e-6;
-                if k == 0 {
-                    newest_frame = newest_frame.max(stamp.frame_seq);
+        for (k, sub) in subs.iter().enumerate() {
+            let stamp = if k == 0 && copy_frames && frames.len() < a.inference_runs.max(1) {
+                match sub.take_message()? {
+                    Some(Message::Image(m)) => {
+                        let stamp = m.header.stamp;
+                        frames.push((m.header, m.data));
+                        Some(stamp)
+                    }
+                    _ => None,
                 }
-                if k == PATH.len() - 1 && first_command.is_none() {
+            } else {
+                sub.take_stamp()?
+            };
+            let Some(stamp) = stamp else { continue };
+            if k == 0 {
+                newest_frame = newest_frame.max(stamp.frame_seq);
+                let ingest = if copy_frames {
+                    now_ns
+                } else {
+                    stamp.capture_time_ns
+                };
+                ingest_ns.entry(stamp.frame_seq).or_insert(ingest);
+            }
+            if k == path.len() - 1 {
+                last_command = Instant::now();
+                if first_command.is_none() {
                     first_command = Some(Instant::now());
                     eprintln!("first command; warming up {} s ...", a.warm_up_s);
                 }
-                if let Some((_, first_seq)) = measuring_since {
-                    if stamp.frame_seq >= first_seq {
-                        arrivals[k].entry(stamp.frame_seq).or_insert(ms);
-                    }
+            }
+            if let Some((_, first_seq)) = measuring_since {
+                if let (true, Some(&t0)) = (
+                    stamp.frame_seq >= first_seq,
+                    ingest_ns.get(&stamp.frame_seq),
+                ) {
+                    let ms = now_ns.saturating_sub(t0) as f64 * 1e-6;
+                    arrivals[k].entry(stamp.frame_seq).or_insert(ms);
                 }
             }
         }
@@ -212,11 +315,18 @@ fn measure(a: &E2eArgs, prefix: &str) -> Result<(Arrivals, BTreeMap<String, Proc
         }
         match (first_command, measuring_since) {
             (Some(t), None) if t.elapsed().as_secs_f64() >= a.warm_up_s => {
-                // Frames captured from here on are the measured ones.
+                // Frames ingested from here on are the measured ones.
                 measuring_since = Some((Instant::now(), newest_frame + 1));
+                memory_at_start = read_memory(&pids);
                 eprintln!("measuring {} s ...", a.seconds);
             }
             (_, Some((t, _))) if t.elapsed().as_secs_f64() >= a.seconds => return Ok(true),
+            // The run ended (a simulated drive reached its goal).
+            (_, Some(_)) if last_command.elapsed() > Duration::from_secs(20) => {
+                eprintln!("no command for 20 s: the run ended; reporting what was measured");
+                ended = true;
+                return Ok(true);
+            }
             (None, _) if started.elapsed() > Duration::from_secs(300) => {
                 bail!("no command within 300 s of starting the graph (see its demo.log)")
             }
@@ -224,15 +334,42 @@ fn measure(a: &E2eArgs, prefix: &str) -> Result<(Arrivals, BTreeMap<String, Proc
         }
         Ok(false)
     })?;
-    let memory = pids
-        .iter()
-        .filter_map(|(s, &pid)| memory::of_pid(pid).map(|m| (s.clone(), m)))
-        .collect();
-    let span = measuring_since.map_or(0.0, |(t, _)| t.elapsed().as_secs_f64());
-    if arrivals[PATH.len() - 1].is_empty() {
+    // Health goes out once a second: a short run may end before every
+    // stage's first report has reached the tap.
+    let until = Instant::now() + Duration::from_secs(5);
+    while pids.len() < health.len() && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(100));
+        for h in &health {
+            if let Some(h) = h.latest()? {
+                pids.insert(h.stage.as_str().to_string(), h.pid);
+            }
+        }
+    }
+    let mut memory = read_memory(&pids);
+    if memory.len() < memory_at_start.len() {
+        memory = memory_at_start;
+    }
+    // A run that ended measured until its last command.
+    let span_s = measuring_since.map_or(0.0, |(t, _)| {
+        let end = if ended { last_command } else { Instant::now() };
+        end.saturating_duration_since(t).as_secs_f64()
+    });
+    if arrivals[path.len() - 1].is_empty() {
         bail!("no frame reached cmd/velocity while measuring");
     }
-    Ok((arrivals, memory, span))
+    Ok(Measured {
+        arrivals,
+        memory,
+        span_s,
+        frames,
+    })
+}
+
+/// Each stage's memory, by the pid its health reports.
+fn read_memory(pids: &BTreeMap<String, u32>) -> BTreeMap<String, ProcessMemory> {
+    pids.iter()
+        .filter_map(|(s, &pid)| memory::of_pid(pid).map(|m| (s.clone(), m)))
+        .collect()
 }
 
 /// How the graph's servo publishes: the tick alone (rate-limited) or a
@@ -241,10 +378,19 @@ fn measure(a: &E2eArgs, prefix: &str) -> Result<(Arrivals, BTreeMap<String, Proc
 struct ServoTiming {
     rate_hz: f64,
     on_input: bool,
+    /// On the stamps' clock: one command per subgoal or path, at once.
+    on_stamps: bool,
 }
 
 impl ServoTiming {
-    fn describe(&self) -> String {
+    fn describe(&self, chain: Chain) -> String {
+        if self.on_stamps {
+            let stages: Vec<&str> = chain.path().iter().skip(1).map(|(_, s)| *s).collect();
+            return format!(
+                "event-driven: {} (clock = \"stamps\": each answers its input at once; the simulator waits for each command)",
+                stages.join(", ")
+            );
+        }
         let stages = "camera-ingest (paced by the navigability), inference, subgoal-selection";
         let tick = format!("{} Hz", self.rate_hz);
         if self.on_input {
@@ -256,20 +402,28 @@ impl ServoTiming {
 }
 
 fn print_report(
-    arrivals: &Arrivals,
-    memory: &BTreeMap<String, ProcessMemory>,
-    span_s: f64,
+    chain: Chain,
+    m: &Measured,
     alone: &crate::bench_inference::PhaseMedians,
     servo: ServoTiming,
 ) {
-    let commands = arrivals[PATH.len() - 1].len();
+    let (path, arrivals) = (chain.path(), &m.arrivals);
+    let commands = arrivals[path.len() - 1].len();
+    let source = match chain {
+        Chain::PovnavOrfd => "on the ORFD frames",
+        Chain::FitamSim => "in the simulator, lock-step,",
+    };
     println!(
-        "end to end: graphs/orfd.toml as processes on the ORFD frames ({}x{}), {:.0} s, {} frames to a command, one run\n",
-        alone.frame.0, alone.frame.1, span_s, commands
+        "end to end: {} as processes {source} ({}x{}), {:.0} s, {} frames to a command, one run\n",
+        chain.graph(),
+        alone.frame.0,
+        alone.frame.1,
+        m.span_s,
+        commands
     );
-    println!("| from capture to | produced by | frames | median ms | p99 ms |");
+    println!("| from ingest to | produced by | frames | median ms | p99 ms |");
     println!("|---|---|---|---|---|");
-    for (k, (topic, stage)) in PATH.iter().enumerate() {
+    for (k, (topic, stage)) in path.iter().enumerate() {
         let mut v: Vec<f64> = arrivals[k].values().copied().collect();
         if v.is_empty() {
             println!("| {topic} | {stage} | 0 | - | - |");
@@ -284,7 +438,7 @@ fn print_report(
     }
     println!("\n| hop | frames | median ms | p99 ms |");
     println!("|---|---|---|---|");
-    for k in 1..PATH.len() {
+    for k in 1..path.len() {
         let mut v: Vec<f64> = arrivals[k]
             .iter()
             .filter_map(|(seq, t)| arrivals[k - 1].get(seq).map(|t0| t - t0))
@@ -295,9 +449,9 @@ fn print_report(
         let n = v.len();
         println!(
             "| {} -> {} ({}) | {n} | {:.1} | {:.1} |",
-            PATH[k - 1].0,
-            PATH[k].0,
-            PATH[k].1,
+            path[k - 1].0,
+            path[k].0,
+            path[k].1,
             quantile(&mut v, 0.5),
             quantile(&mut v, 0.99)
         );
@@ -307,18 +461,18 @@ fn print_report(
         "\ninference alone (same model and frames, no graph): pre {:.1} + inference {:.1} + post {:.1} = {:.1} ms (median)",
         alone.pre_ms, alone.inference_ms, alone.post_ms, total
     );
-    let mut c2c: Vec<f64> = arrivals[PATH.len() - 1].values().copied().collect();
+    let mut c2c: Vec<f64> = arrivals[path.len() - 1].values().copied().collect();
     let c2c = quantile(&mut c2c, 0.5);
     println!(
         "capture-to-command median {:.1} ms = inference alone + {:.1} ms (goal: + 2 ms where every stage on the path is event-driven)",
         c2c,
         c2c - total
     );
-    println!("{}", servo.describe());
-    if !memory.is_empty() {
+    println!("{}", servo.describe(chain));
+    if !m.memory.is_empty() {
         println!("\n| stage | private MB | shared memory MB |");
         println!("|---|---|---|");
-        for (s, m) in memory {
+        for (s, m) in &m.memory {
             println!(
                 "| {s} | {:.1} | {:.1} |",
                 memory::mb(m.private_bytes),

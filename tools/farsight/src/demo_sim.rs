@@ -255,7 +255,12 @@ pub fn run(d: SimDemo) -> Result<()> {
     }
     std::fs::create_dir_all(&d.out)?;
     let out = std::fs::canonicalize(&d.out)?;
-    let prefix = format!("simdemo{}_", std::process::id());
+    // Its own shared-memory namespace, or the caller's (`farsight bench
+    // e2e --chain fitam-sim` taps the graph from outside).
+    let prefix = std::env::var("FARSIGHT_IPC_PREFIX")
+        .ok()
+        .filter(|p| !p.is_empty())
+        .unwrap_or_else(|| format!("simdemo{}_", std::process::id()));
     let graph = match &d.graph {
         Some(g) => std::path::absolute(g)?,
         None => crate::graph::repo_file(d.method.graph(d.oracle))?,
