@@ -522,8 +522,9 @@ fn the_orfd_replay_watched_from_a_laptop_is_schema_valid_and_fits_the_link() {
     )
     .unwrap_or_else(|why| {
         panic!(
-            "orfd: the client did not get {MESSAGES} messages of each of {require:?}: {why}\ndemo:\n{}",
-            demo.stderr_so_far()
+            "orfd: the client did not get {MESSAGES} messages of each of {require:?}: {why}\ndemo:\n{}\n{}",
+            demo.stderr_so_far(),
+            stage_logs(&out)
         )
     });
     assert_eq!(
@@ -611,6 +612,24 @@ fn until<T>(what: &str, mut f: impl FnMut() -> Option<T>) -> T {
 /// `farsight foxglove` on a laptop, reading the robot's bridge through the
 /// shipped router (laptops read, only the operator commands), logged in as
 /// `user`; once it said it is ready, with `mode` in its ready line.
+/// The last lines of each stage's log in a `farsight run` output folder,
+/// for a failure message: which stage stalled or refused what.
+fn stage_logs(out: &Path) -> String {
+    let mut logs: Vec<_> = std::fs::read_dir(out)
+        .map(|d| d.flatten().map(|e| e.path()).collect())
+        .unwrap_or_default();
+    logs.retain(|p| p.extension().is_some_and(|e| e == "log"));
+    logs.sort();
+    let mut text = String::new();
+    for p in logs {
+        let body = std::fs::read_to_string(&p).unwrap_or_default();
+        let lines: Vec<&str> = body.lines().collect();
+        let tail = lines[lines.len().saturating_sub(40)..].join("\n");
+        text += &format!("--- {} (last 40 lines)\n{tail}\n", p.display());
+    }
+    text
+}
+
 fn laptop_server(ns: &Namespace, endpoint: &str, user: &str, mode: &str) -> (Proc, String) {
     let port = free_port().to_string();
     let password = format!("{user}-secret");
