@@ -220,11 +220,12 @@ fn per_method_a_benchmark_trial_drives_the_track_its_graph_drives_as_processes_e
     // Short drives (20 s of simulated time) into the obstacle field: each
     // method's graph file twice as processes (`farsight demo --graph`,
     // through `farsight run`), and the benchmark's in-process trial of the
-    // same file twice (one `farsight bench nav` per pass).
+    // same file twice (one `farsight bench nav` per pass: trials side by
+    // side, then one at a time, which must not change a track).
     let ns = Namespace::new("benchgraph");
     let (scenario, seconds) = ("obstacle-field-1", "20");
     let methods_and_graphs = bench_methods(&ns);
-    let bench = |pass: &str| {
+    let bench = |pass: &str, jobs: &str| {
         let traces = ns.write("placeholder", "").with_file_name(pass);
         let methods: Vec<&str> = methods_and_graphs.iter().map(|(m, _)| m.as_str()).collect();
         let methods = methods.join(",");
@@ -243,6 +244,8 @@ fn per_method_a_benchmark_trial_drives_the_track_its_graph_drives_as_processes_e
                 seconds,
                 "--trace",
                 traces.to_str().unwrap(),
+                "--jobs",
+                jobs,
             ],
             &ns,
         );
@@ -254,7 +257,7 @@ fn per_method_a_benchmark_trial_drives_the_track_its_graph_drives_as_processes_e
         );
         traces
     };
-    let (first, second) = (bench("bench-a"), bench("bench-b"));
+    let (first, second) = (bench("bench-a", "3"), bench("bench-b", "1"));
     let mut parted = Vec::new();
     for (method, graph) in &methods_and_graphs {
         let graph = farsight_tests::repo_root().join(graph);
@@ -263,7 +266,7 @@ fn per_method_a_benchmark_trial_drives_the_track_its_graph_drives_as_processes_e
         assert_eq!(
             t,
             poses(&second.join(&trace)),
-            "{method}: two benchmark trials"
+            "{method}: two benchmark trials, 3 side by side and one at a time"
         );
         assert_eq!(
             t.lines().count(),

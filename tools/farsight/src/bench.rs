@@ -225,6 +225,11 @@ pub struct NavArgs {
     /// Print each method and the graph file it runs (tab-separated), run nothing.
     #[arg(long)]
     pub list: bool,
+    /// Trials run side by side (default: the machine's cores). Each trial is
+    /// seeded and alone in its simulator and graph, so the results are the
+    /// same for any number; only the wall time changes.
+    #[arg(long)]
+    pub jobs: Option<usize>,
 }
 
 pub fn run(cmd: BenchCommand) -> Result<()> {

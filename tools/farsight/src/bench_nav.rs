@@ -71,7 +71,7 @@ use farsight_sim::render::{map_picture, MapMarks};
 use farsight_sim::scenario::Scenario;
 use farsight_sim::sim_robot::SimOptions;
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// The benchmark's rows: name and graph file (relative to the repository).
@@ -144,17 +144,6 @@ pub fn sim_options(graph: &Graph, scenario: &str, seed: u64, rules: &TrialRules)
         near_field: rules.near_field,
         ..defaults
     }
-}
-
-/// One trial: a graph on a scenario and seed, to the goal or the time limit.
-pub fn trial(
-    graph: &Graph,
-    scenario: &str,
-    seed: u64,
-    rules: &TrialRules,
-    trace: Option<&Path>,
-) -> Result<Trial> {
-    lockstep::drive(graph, &sim_options(graph, scenario, seed, rules), trace)
 }
 
 /// What a trial runs under besides its graph, scenario and seed.
@@ -354,97 +343,139 @@ pub fn run(a: NavArgs) -> Result<()> {
         // Written now, so a bad path fails before any trial is driven.
         record::write(out, &results)?;
     }
-    let (mut frames, mut stage_steps, mut late, t0) = (0u64, 0u64, 0u64, Instant::now());
-    let mut reasons: BTreeMap<String, u64> = BTreeMap::new();
-    for sc in &results.protocol.scenarios.clone() {
-        for (m, graph) in &graphs {
-            let mut cell = Vec::new();
-            for &i in &mine {
-                let key = &list[i];
-                if &key.scenario != sc || &key.method != m {
-                    continue;
-                }
-                let seed = key.seed;
-                let scenario = farsight_sim::scenario::scenario(sc, seed)?;
-                let (expert, limit) =
-                    time_limit(&scenario, &rule).map_err(|e| anyhow!("{sc} seed {seed}: {e}"))?;
-                let name = format!("{sc}-{m}-{seed}");
-                let csv = a.trace.as_ref().map(|d| d.join(format!("{name}.csv")));
-                let rules = TrialRules {
-                    max_time_s: limit,
-                    intervention: a.intervention_rule,
-                    pose_noise_m: a.pose_noise_m,
-                    yaw_noise_deg: a.yaw_noise_deg,
-                    robot_radius_m: a.robot_radius_m,
-                    near_field: a.near_field,
-                };
-                let t = trial(graph, sc, seed, &rules, csv.as_deref())?;
-                let s = &t.summary;
-                let expert_reached = expert_success(&scenario, &rules);
-                let expert_s = expert.as_ref().map(|e| e.time_s);
-                eprintln!(
-                    "  {sc} {m} seed {seed}: {:?} after {:.0} s of {limit:.0} s (expert {}), {:.0} m, {} interventions, {} frames without a command",
-                    s.outcome,
-                    s.time_s,
-                    expert_s.map_or("none".into(), |e| format!("{e:.0} s")),
-                    s.distance_m,
-                    s.interventions,
-                    t.late,
-                );
-                if let (Some(d), true) = (&a.trace, stuck(&t)) {
-                    let png = d.join(format!("{name}.png"));
-                    std::fs::write(&png, stuck_picture_png(&scenario, expert.as_ref(), &t)?)
-                        .with_context(|| format!("writing {}", png.display()))?;
-                }
-                frames += t.frames;
-                stage_steps += t.stage_steps;
-                late += t.late;
-                for (k, v) in &t.late_reasons {
-                    *reasons.entry(k.clone()).or_insert(0) += v;
-                }
-                let r = TrialRecord {
-                    scenario: sc.clone(),
-                    method: m.clone(),
-                    seed,
-                    outcome: match s.outcome {
-                        Outcome::Reached => "reached",
-                        Outcome::Harmed => "harmed",
-                        _ => "timed_out",
-                    }
-                    .into(),
-                    time_s: s.time_s,
-                    distance_m: s.distance_m,
-                    traversal_cost_s: s.traversal_cost_s,
-                    collisions: s.collisions,
-                    interventions: s.interventions,
-                    final_goal_distance_m: s.final_goal_distance_m,
-                    straight_line_m: (scenario.goal[0] - scenario.start[0])
-                        .hypot(scenario.goal[1] - scenario.start[1]),
-                    expert_time_s: expert_s,
-                    expert_distance_m: expert.as_ref().map(|e| path_length_m(&e.path)),
-                    expert_reached,
-                    shortest_path_m: shortest_path_m(
-                        &scenario.world,
-                        [scenario.start[0], scenario.start[1]],
-                        scenario.goal,
-                        a.robot_radius_m,
-                        EpisodeConfig::default().goal_radius_m,
-                    ),
-                    time_limit_s: limit,
-                    frames: t.frames,
-                    frames_without_command: t.late,
-                };
-                results.trials.push(r.clone());
-                cell.push(r);
-                if let Some(out) = &a.out {
-                    record::write(out, &results)?;
-                }
-            }
-            if !cell.is_empty() {
-                print!("{}", record::row(sc, m, &cell.iter().collect::<Vec<_>>()));
-            }
+    // The trials in the table's order: scenario, then row, then seed.
+    let mut order: Vec<usize> = Vec::new();
+    for sc in &results.protocol.scenarios {
+        for (m, _) in &graphs {
+            order.extend(
+                mine.iter()
+                    .copied()
+                    .filter(|&i| &list[i].scenario == sc && &list[i].method == m),
+            );
         }
     }
+    let jobs = crate::jobs::count(a.jobs, order.len());
+    // Side by side, each trial's renderer gets its share of the cores (the
+    // image is the same for any number of bands).
+    let render_threads = if jobs > 1 {
+        (crate::jobs::cores() / jobs).max(1)
+    } else {
+        0
+    };
+    let run_one = |k: usize| -> Result<(TrialRecord, Trial, String)> {
+        let key = &list[order[k]];
+        let (sc, m, seed) = (&key.scenario, &key.method, key.seed);
+        let graph = &graphs
+            .iter()
+            .find(|(name, _)| name == m)
+            .expect("the trial list holds the rows' methods")
+            .1;
+        let scenario = farsight_sim::scenario::scenario(sc, seed)?;
+        let (expert, limit) =
+            time_limit(&scenario, &rule).map_err(|e| anyhow!("{sc} seed {seed}: {e}"))?;
+        let name = format!("{sc}-{m}-{seed}");
+        let csv = a.trace.as_ref().map(|d| d.join(format!("{name}.csv")));
+        let rules = TrialRules {
+            max_time_s: limit,
+            intervention: a.intervention_rule,
+            pose_noise_m: a.pose_noise_m,
+            yaw_noise_deg: a.yaw_noise_deg,
+            robot_radius_m: a.robot_radius_m,
+            near_field: a.near_field,
+        };
+        let mut options = sim_options(graph, sc, seed, &rules);
+        options.render_threads = render_threads;
+        let t = lockstep::drive(graph, &options, csv.as_deref())?;
+        let s = &t.summary;
+        let expert_s = expert.as_ref().map(|e| e.time_s);
+        let line = format!(
+            "  {sc} {m} seed {seed}: {:?} after {:.0} s of {limit:.0} s (expert {}), {:.0} m, {} interventions, {} frames without a command",
+            s.outcome,
+            s.time_s,
+            expert_s.map_or("none".into(), |e| format!("{e:.0} s")),
+            s.distance_m,
+            s.interventions,
+            t.late,
+        );
+        if let (Some(d), true) = (&a.trace, stuck(&t)) {
+            let png = d.join(format!("{name}.png"));
+            std::fs::write(&png, stuck_picture_png(&scenario, expert.as_ref(), &t)?)
+                .with_context(|| format!("writing {}", png.display()))?;
+        }
+        let record = TrialRecord {
+            scenario: sc.clone(),
+            method: m.clone(),
+            seed,
+            outcome: match s.outcome {
+                Outcome::Reached => "reached",
+                Outcome::Harmed => "harmed",
+                _ => "timed_out",
+            }
+            .into(),
+            time_s: s.time_s,
+            distance_m: s.distance_m,
+            traversal_cost_s: s.traversal_cost_s,
+            collisions: s.collisions,
+            interventions: s.interventions,
+            final_goal_distance_m: s.final_goal_distance_m,
+            straight_line_m: (scenario.goal[0] - scenario.start[0])
+                .hypot(scenario.goal[1] - scenario.start[1]),
+            expert_time_s: expert_s,
+            expert_distance_m: expert.as_ref().map(|e| path_length_m(&e.path)),
+            expert_reached: expert_success(&scenario, &rules),
+            shortest_path_m: shortest_path_m(
+                &scenario.world,
+                [scenario.start[0], scenario.start[1]],
+                scenario.goal,
+                a.robot_radius_m,
+                EpisodeConfig::default().goal_radius_m,
+            ),
+            time_limit_s: limit,
+            frames: t.frames,
+            frames_without_command: t.late,
+        };
+        Ok((record, t, line))
+    };
+    if jobs > 1 {
+        eprintln!("{} trials, {jobs} side by side", order.len());
+    }
+    let (mut frames, mut stage_steps, mut late, t0) = (0u64, 0u64, 0u64, Instant::now());
+    let mut reasons: BTreeMap<String, u64> = BTreeMap::new();
+    let mut done: Vec<Option<TrialRecord>> = vec![None; order.len()];
+    // A table row goes out once its trials and every row above it are done.
+    let mut printed = 0;
+    crate::jobs::run(jobs, order.len(), run_one, |k, (record, t, line)| {
+        eprintln!("{line}");
+        frames += t.frames;
+        stage_steps += t.stage_steps;
+        late += t.late;
+        for (why, n) in &t.late_reasons {
+            *reasons.entry(why.clone()).or_insert(0) += n;
+        }
+        done[k] = Some(record);
+        // The results file keeps the table's order, whatever finished first.
+        results.trials = done.iter().flatten().cloned().collect();
+        if let Some(out) = &a.out {
+            record::write(out, &results)?;
+        }
+        while printed < order.len() {
+            let first = &list[order[printed]];
+            let cell = (printed..order.len())
+                .take_while(|&j| {
+                    let o = &list[order[j]];
+                    o.scenario == first.scenario && o.method == first.method
+                })
+                .count();
+            let rows: Option<Vec<&TrialRecord>> = done[printed..printed + cell]
+                .iter()
+                .map(Option::as_ref)
+                .collect();
+            let Some(rows) = rows else { break };
+            print!("{}", record::row(&first.scenario, &first.method, &rows));
+            printed += cell;
+        }
+        Ok(())
+    })?;
     let wall = t0.elapsed().as_secs_f64();
     println!(
         "\nsimulator + graph: {frames} steps in {wall:.1} s ({:.0} steps/s); {stage_steps} stage steps; {late} frames without a command",

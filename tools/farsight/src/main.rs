@@ -36,6 +36,7 @@ mod graph;
 mod hip_library;
 mod infer;
 mod inspect;
+mod jobs;
 mod lockstep;
 mod memory;
 mod probe;

@@ -319,6 +319,7 @@ impl RunArgs {
             intervention: self.intervention_rule,
             near_field: self.near_field,
             robot_radius_m: self.robot_radius_m,
+            render_threads: 0,
         }
     }
 }

@@ -54,6 +54,9 @@ pub struct SimOptions {
     /// What the near-field sensor reports: true costs, or HIP's height
     /// threshold (`crate::sensor::CostModel`).
     pub near_field: crate::sensor::CostModel,
+    /// Threads each camera's renderer uses (0: the machine's cores, at
+    /// most 4). A benchmark running trials side by side gives each fewer.
+    pub render_threads: usize,
 }
 
 impl Default for SimOptions {
@@ -74,6 +77,7 @@ impl Default for SimOptions {
             intervention: Default::default(),
             robot_radius_m: crate::robot::RobotLimits::default().radius_m,
             near_field: crate::sensor::CostModel::TrueCost,
+            render_threads: 0,
         }
     }
 }
@@ -133,7 +137,13 @@ impl SimRobot {
                         topics::navigability(n).name().to_string(),
                         topics::camera_image(n).name().to_string(),
                     ],
-                    renderer: Renderer::new(&camera, 150.0),
+                    renderer: {
+                        let mut r = Renderer::new(&camera, 150.0);
+                        if options.render_threads > 0 {
+                            r.threads = options.render_threads;
+                        }
+                        r
+                    },
                     frame: Frame::default(),
                     camera,
                 })
