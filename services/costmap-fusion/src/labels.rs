@@ -35,11 +35,22 @@ impl LabelRules {
     /// allows (lethal cells count as the slowest class, as FITAM's far-field
     /// classes have no lethal one).
     pub fn class_of(&self, cost_s_per_m: f32) -> usize {
-        let speed = 1.0 / cost_s_per_m as f64;
-        self.fastest_first()
-            .into_iter()
-            .find(|&c| self.class_speeds_mps[c] <= speed + 1e-9)
-            .unwrap_or_else(|| *self.fastest_first().last().expect("classes"))
+        self.classifier()(cost_s_per_m)
+    }
+
+    /// [`Self::class_of`] with the classes' order worked out once: a
+    /// labeller classifies every cell of every swath, 30,000 or more a frame.
+    pub fn classifier(&self) -> impl Fn(f32) -> usize + '_ {
+        let order = self.fastest_first();
+        let slowest = *order.last().expect("classes");
+        move |cost_s_per_m| {
+            let speed = 1.0 / cost_s_per_m as f64;
+            order
+                .iter()
+                .copied()
+                .find(|&c| self.class_speeds_mps[c] <= speed + 1e-9)
+                .unwrap_or(slowest)
+        }
     }
 
     fn fastest_first(&self) -> Vec<usize> {
@@ -103,6 +114,7 @@ pub fn swath_labels(
     let classes = rules.class_speeds_mps.len();
     // Per swath: cells per class, then all cells.
     let mut counts = vec![vec![0usize; classes + 1]; geometry.heading_bins * radial];
+    let class_of = rules.classifier();
     for_each_swath_cell(
         geometry,
         pose[0],
@@ -113,7 +125,7 @@ pub fn swath_labels(
             let slot = &mut counts[h * radial + r];
             slot[classes] += 1;
             if let Some(cost) = cost_at(gx, gy) {
-                slot[rules.class_of(cost)] += 1;
+                slot[class_of(cost)] += 1;
             }
         },
     );

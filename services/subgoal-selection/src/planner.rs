@@ -260,11 +260,15 @@ impl WorldPlanner {
     }
 
     fn cell(&self, p: [f64; 2]) -> Option<(usize, usize)> {
+        Some((self.axis_cell(p[0], 0)?, self.axis_cell(p[1], 1)?))
+    }
+
+    /// The grid column (`axis` 0) or row (1) holding world coordinate `m`.
+    fn axis_cell(&self, m: f64, axis: usize) -> Option<usize> {
         let g = self.dstar.grid();
-        let x = ((p[0] - self.origin_m[0]) / self.resolution_m).round();
-        let y = ((p[1] - self.origin_m[1]) / self.resolution_m).round();
-        (x >= 0.0 && y >= 0.0 && (x as usize) < g.width && (y as usize) < g.height)
-            .then_some((x as usize, y as usize))
+        let len = [g.width, g.height][axis];
+        let k = ((m - self.origin_m[axis]) / self.resolution_m).round();
+        (k >= 0.0 && (k as usize) < len).then_some(k as usize)
     }
 
     fn world(&self, c: (usize, usize)) -> [f64; 2] {
@@ -284,18 +288,28 @@ impl WorldPlanner {
         let forget = self.memory == PlannerMemory::Costmap;
         let mut touched = Vec::new();
         let mut covered = Vec::new();
-        for (k, c) in cells.iter().enumerate().take(header.cell_count()) {
-            if c.cost_s_per_m.is_nan() {
-                continue;
-            }
-            let Some((x, y)) = self.cell(header.cell_centre_m(k)) else {
+        // A message cell's grid column depends only on its column and its
+        // grid row only on its row: each is worked out once, not per cell.
+        let row_len = (header.width as usize).max(1);
+        let cells = &cells[..header.cell_count().min(cells.len())];
+        let columns: Vec<Option<usize>> = (0..row_len.min(cells.len()))
+            .map(|j| self.axis_cell(header.cell_centre_m(j)[0], 0))
+            .collect();
+        for (i, row) in cells.chunks(row_len).enumerate() {
+            let Some(y) = self.axis_cell(header.cell_centre_m(i * row_len)[1], 1) else {
                 continue;
             };
-            if forget {
-                self.marked[y * w + x] = true;
-                covered.push(y * w + x);
+            for (c, &x) in row.iter().zip(&columns) {
+                let Some(x) = x else { continue };
+                if c.cost_s_per_m.is_nan() {
+                    continue;
+                }
+                if forget {
+                    self.marked[y * w + x] = true;
+                    covered.push(y * w + x);
+                }
+                self.set_base(x, y, c.cost_s_per_m, &mut touched);
             }
-            self.set_base(x, y, c.cost_s_per_m, &mut touched);
         }
         if forget {
             let unknown = self.unknown_cost_s_per_m;
@@ -339,6 +353,10 @@ impl WorldPlanner {
         let lethal = |c: f32| c.is_infinite();
         let i = y * w + x;
         let old = std::mem::replace(&mut self.base[i], cost_s_per_m);
+        if old.to_bits() == cost_s_per_m.to_bits() {
+            // Neither this cell's effective cost nor any lethal count moves.
+            return;
+        }
         touched.push((x, y));
         if lethal(old) == lethal(cost_s_per_m) {
             return;
