@@ -175,10 +175,21 @@ impl<T: Clone> ScrollingGrid<T> {
     /// `f`, into `out` (which holds `width * height` entries; a shorter one
     /// gets the first rows).
     pub fn write_rows_north_up<U>(&self, out: &mut [U], mut f: impl FnMut((i64, i64), &T) -> U) {
-        let cells = (0..self.height).flat_map(|i| (0..self.width).map(move |j| (i, j)));
-        for (slot, (i, j)) in out.iter_mut().zip(cells) {
-            let g = self.global_of_row_col(i, j);
-            *slot = f(g, &self.cells[self.slot(g.0, g.1)]);
+        // An exported row is one stored row, its columns two runs split where
+        // the storage wraps: no slot is worked out per cell (the costmap is
+        // exported every frame).
+        let w = self.width;
+        for (i, out_row) in out.chunks_mut(w).take(self.height).enumerate() {
+            let (gx0, gy) = self.global_of_row_col(i, 0);
+            let stored = &self.cells[self.slot(gx0, gy) - self.origin_slot.0..][..w];
+            let (wrapped, first) = stored.split_at(self.origin_slot.0);
+            for (j, (slot, cell)) in out_row
+                .iter_mut()
+                .zip(first.iter().chain(wrapped))
+                .enumerate()
+            {
+                *slot = f((gx0 + j as i64, gy), cell);
+            }
         }
     }
 
@@ -231,6 +242,21 @@ mod tests {
                 assert_eq!(g.get(gx, gy), Some(&want), "cell ({gx}, {gy})");
             }
         }
+        // Exported rows, north up, with storage wrapped in both axes.
+        let mut rows = vec![(0, (0, 0)); 48];
+        g.write_rows_north_up(&mut rows, |at, &v| (v, at));
+        for (k, &(v, at)) in rows.iter().enumerate() {
+            let want = g.global_of_row_col(k / 8, k % 8);
+            assert_eq!(at, want, "export cell {k}");
+            assert_eq!(Some(&v), g.get(want.0, want.1), "export cell {k}");
+        }
+        let mut first_rows = vec![(0, (0, 0)); 11];
+        g.write_rows_north_up(&mut first_rows, |at, &v| (v, at));
+        assert_eq!(
+            first_rows,
+            rows[..11],
+            "a shorter output gets the first rows"
+        );
         // Wrap the torus several times over: still consistent.
         g.recenter(-100.0, 57.0);
         let mut all = vec![0; 48];

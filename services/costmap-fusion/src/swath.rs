@@ -84,9 +84,28 @@ impl PolarGeometry {
 
     /// The heading bin of a robot-frame bearing, if one covers it.
     pub fn heading_bin(&self, bearing_rad: f64) -> Option<usize> {
-        let a = (bearing_rad - self.first_heading_start_rad).rem_euclid(TAU);
-        let k = (a / self.heading_width_rad).floor() as usize;
+        let a = turn_of(bearing_rad - self.first_heading_start_rad);
+        // `a` is not negative, so the cast truncates as `floor` would (a
+        // libm call per swath cell on x86-64's baseline).
+        let k = (a / self.heading_width_rad) as usize;
         (k < self.heading_bins).then_some(k)
+    }
+}
+
+/// `x.rem_euclid(TAU)`, bit for bit, without `fmod` for the angles a swath
+/// cell's bearing minus a heading gives (within two turns): inside one turn
+/// `fmod` returns `x` itself (so `x + TAU` below zero, as `rem_euclid`
+/// adds; at exactly `-TAU`, `fmod` gives -0), and between one and two turns
+/// `x - TAU` is exact (Sterbenz), which is what `fmod` returns there.
+fn turn_of(x: f64) -> f64 {
+    if (0.0..TAU).contains(&x) {
+        x
+    } else if x > -TAU && x < 0.0 {
+        x + TAU
+    } else if (TAU..2.0 * TAU).contains(&x) {
+        x - TAU
+    } else {
+        x.rem_euclid(TAU)
     }
 }
 
@@ -285,6 +304,30 @@ mod tests {
             }
         });
         s
+    }
+
+    #[test]
+    fn turn_of_is_rem_euclid_bit_for_bit() {
+        let mut x = -5.0 * TAU;
+        while x < 5.0 * TAU {
+            for v in [x, x.next_up(), x.next_down()] {
+                assert_eq!(turn_of(v).to_bits(), v.rem_euclid(TAU).to_bits(), "{v}");
+            }
+            x += 0.0137;
+        }
+        for v in [
+            0.0,
+            -0.0,
+            TAU,
+            -TAU,
+            2.0 * TAU,
+            TAU.next_down(),
+            (-TAU).next_up(),
+            f64::INFINITY,
+            f64::NAN,
+        ] {
+            assert_eq!(turn_of(v).to_bits(), v.rem_euclid(TAU).to_bits(), "{v}");
+        }
     }
 
     #[test]

@@ -134,10 +134,14 @@ impl NearFieldSensor {
         let mut mark = |gx: i64, gy: i64| {
             let (j, i) = (gx - (cx - half), (cy + half) - gy);
             if (0..side as i64).contains(&j) && (0..side as i64).contains(&i) {
-                cells[i as usize * side + j as usize] = CostCell {
-                    cost_s_per_m: self.cost_model.cost_s_per_m(world, gx, gy),
-                    variance: 0.0,
-                };
+                // Rays overlap near the robot: a cell's cost is worked out once.
+                let cell = &mut cells[i as usize * side + j as usize];
+                if cell.variance.is_nan() {
+                    *cell = CostCell {
+                        cost_s_per_m: self.cost_model.cost_s_per_m(world, gx, gy),
+                        variance: 0.0,
+                    };
+                }
             }
         };
         mark(cx, cy);
