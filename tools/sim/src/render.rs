@@ -243,7 +243,21 @@ impl Renderer {
         };
         let mut t_in = 0.0f64;
         let mut side_x = true;
+        // How far the world's tallest possible top rises above the camera.
+        let rise_m = world.top_bound_m() as f64 - cam_z;
         while next >= 0 && t_in < self.max_range_m {
+            // A cell from `t_in` on covers no row whose tangent exceeds
+            // rise_m / t_in (or 0 when nothing rises above the camera), so
+            // once the lowest undrawn row is above that, the rest is sky:
+            // the march ends where the image ends, not at the range (on
+            // open ground that is most of a column's cells). Past 5 cm,
+            // where `near` is `t_in` itself, the bound holds as computed.
+            if t_in >= 0.05 {
+                let reach = if rise_m > 0.0 { rise_m / t_in } else { 0.0 };
+                if self.tan_elevation[table + next as usize] > reach {
+                    break;
+                }
+            }
             let t_out = t_max_x.min(t_max_y);
             let look = world.look(cx, cy);
             let ground = look.ground_m as f64 - cam_z;
@@ -514,6 +528,45 @@ mod tests {
         assert_eq!(rgb_only.rgb, full.rgb);
         assert!(rgb_only.class_ids.iter().all(|&c| c == 0), "not filled");
         assert!(full.class_ids.contains(&class::WALL) && full.class_ids.contains(&class::BUSHES));
+    }
+
+    #[test]
+    fn ending_the_march_where_nothing_can_rise_into_view_changes_no_pixel() {
+        // The same view of a wall and bushes on a slope, in a world whose
+        // tallest top is the wall and in one that also holds a 1 km pillar
+        // out of sight behind the camera: there no column can end before
+        // its range, here most end early, and every pixel must agree.
+        // Uphill to the east, so the ground fills the rows below the
+        // horizon early and the far tree line must still be drawn above.
+        let slope: Vec<f32> = (0..200 * 200).map(|i| (i % 200) as f32 * 0.04).collect();
+        let mut world = World::new(200, 200, Cover::Grass);
+        world.set_ground(slope.clone());
+        world.line_obstacle((110, 80), (110, 120), Obstacle::Wall);
+        world.fill_cover(103, 99, 106, 104, Cover::Bushes);
+        world.line_obstacle((80, 160), (100, 170), Obstacle::Tree);
+        world.line_obstacle((185, 60), (185, 140), Obstacle::Tree);
+        let mut pillar = world.clone();
+        let mut high = slope;
+        high[100 * 200] = 1000.0; // cell (0, 100), west of every pose
+        pillar.set_ground(high);
+        assert!(pillar.top_bound_m() > 1000.0 && world.top_bound_m() < 20.0);
+        let cam = level_camera();
+        let mut r = Renderer::new(&cam, 150.0);
+        for pose in [
+            [100.0, 101.3, 0.2],
+            [100.0, 101.3, -0.4],
+            [60.0, 150.0, 0.5],
+        ] {
+            let (mut early, mut full) = (Frame::default(), Frame::default());
+            r.render(&world, pose, &mut early);
+            r.render(&pillar, pose, &mut full);
+            assert_eq!(
+                (&early.rgb, &early.class_ids, &early.depth_m),
+                (&full.rgb, &full.class_ids, &full.depth_m),
+                "{pose:?}"
+            );
+            assert!(early.class_ids.contains(&class::SKY), "{pose:?}");
+        }
     }
 
     #[test]

@@ -171,6 +171,12 @@ pub struct World {
     obstacle: Vec<Obstacle>,
     /// Terrain height per cell, metres; `None` = flat.
     ground_m: Option<Vec<f32>>,
+    /// The highest ground (at least 0 m, the flat ground outside) and the
+    /// tallest cover or obstacle ever set: together an upper bound on every
+    /// cell's top, so a renderer can tell when nothing farther can rise
+    /// into view.
+    max_ground_m: f32,
+    max_stands_m: f32,
 }
 
 impl World {
@@ -182,7 +188,15 @@ impl World {
             cover: vec![fill; width * height],
             obstacle: vec![Obstacle::None; width * height],
             ground_m: None,
+            max_ground_m: 0.0,
+            max_stands_m: fill.height_m(),
         }
+    }
+
+    /// An upper bound on every cell's [`CellLook::top_m`], inside the
+    /// world or out (outside is flat grass at 0 m).
+    pub fn top_bound_m(&self) -> f32 {
+        self.max_ground_m + self.max_stands_m
     }
 
     pub fn contains(&self, x: i64, y: i64) -> bool {
@@ -213,18 +227,21 @@ impl World {
     pub fn set_cover(&mut self, x: i64, y: i64, c: Cover) {
         if let Some(i) = self.idx(x, y) {
             self.cover[i] = c;
+            self.max_stands_m = self.max_stands_m.max(c.height_m());
         }
     }
 
     pub fn set_obstacle(&mut self, x: i64, y: i64, o: Obstacle) {
         if let Some(i) = self.idx(x, y) {
             self.obstacle[i] = o;
+            self.max_stands_m = self.max_stands_m.max(o.height_m());
         }
     }
 
     /// Sets the terrain height field (one value per cell).
     pub fn set_ground(&mut self, heights_m: Vec<f32>) {
         assert_eq!(heights_m.len(), self.width * self.height);
+        self.max_ground_m = heights_m.iter().fold(0.0f32, |m, &h| m.max(h));
         self.ground_m = Some(heights_m);
     }
 
