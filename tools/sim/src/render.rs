@@ -156,7 +156,7 @@ impl Renderer {
             col.depth_m.resize(n * h, 0.0);
             col.class_ids.resize(n * h, 0);
             for j in 0..n {
-                this.march_column(world, pose[2], cam, cam_z, u0 + j, col, j * h);
+                this.march_column(world, pose[2], cam, cam_z, u0 + j, col, j * h, channels);
             }
         };
         std::thread::scope(|scope| {
@@ -196,7 +196,8 @@ impl Renderer {
     }
 
     /// Column `u`'s ray from the camera at `cam` (height `cam_z`), written
-    /// into `col` from pixel `at` on (its rows in order, `at + v`).
+    /// into `col` from pixel `at` on (its rows in order, `at + v`); only
+    /// `channels` are worked out and written.
     #[allow(clippy::too_many_arguments)]
     fn march_column(
         &self,
@@ -207,6 +208,7 @@ impl Renderer {
         u: usize,
         col: &mut Frame,
         at: usize,
+        channels: Channels,
     ) {
         let h = self.height;
         let res = world.resolution_m;
@@ -283,25 +285,36 @@ impl Renderer {
                     break;
                 }
                 let on_face = stands && te >= face_lo;
-                let (class_id, t_hit, rgb) = if on_face {
-                    let rgb =
-                        *face_rgb.get_or_insert_with(|| shaded(look.top_class, face_shade, haze()));
-                    (look.top_class, near, rgb)
+                let i = at + v;
+                if on_face {
+                    if channels.rgb {
+                        let rgb = *face_rgb
+                            .get_or_insert_with(|| shaded(look.top_class, face_shade, haze()));
+                        col.rgb[i * 3..i * 3 + 3].copy_from_slice(&rgb);
+                    }
+                    if channels.depth {
+                        col.depth_m[i] = (near * self.depth_per_m[table + v]) as f32;
+                    }
+                    col.class_ids[i] = look.top_class;
                 } else {
-                    // Where the ray meets this cell's ground (clamped into the cell).
-                    let t = if te < 0.0 {
-                        (ground / te).clamp(near, t_out)
-                    } else {
-                        t_out
-                    };
-                    let rgb = *ground_rgb.get_or_insert_with(|| {
-                        let noise = crate::rng::cell_noise(cx, cy, 17);
-                        shaded(look.ground_class, 0.8 + 0.35 * noise, haze())
-                    });
-                    (look.ground_class, t, rgb)
-                };
-                let depth_m = (t_hit * self.depth_per_m[table + v]) as f32;
-                write_pixel(col, at + v, class_id, rgb, depth_m);
+                    if channels.rgb {
+                        let rgb = *ground_rgb.get_or_insert_with(|| {
+                            let noise = crate::rng::cell_noise(cx, cy, 17);
+                            shaded(look.ground_class, 0.8 + 0.35 * noise, haze())
+                        });
+                        col.rgb[i * 3..i * 3 + 3].copy_from_slice(&rgb);
+                    }
+                    if channels.depth {
+                        // Where the ray meets this cell's ground (clamped into the cell).
+                        let t = if te < 0.0 {
+                            (ground / te).clamp(near, t_out)
+                        } else {
+                            t_out
+                        };
+                        col.depth_m[i] = (t * self.depth_per_m[table + v]) as f32;
+                    }
+                    col.class_ids[i] = look.ground_class;
+                }
                 next -= 1;
             }
             // Step to the next cell.
@@ -317,8 +330,14 @@ impl Renderer {
             }
         }
         while next >= 0 {
-            let v = next as usize;
-            write_pixel(col, at + v, class::SKY, self.sky_rgb[v], f32::INFINITY);
+            let (v, i) = (next as usize, at + next as usize);
+            if channels.rgb {
+                col.rgb[i * 3..i * 3 + 3].copy_from_slice(&self.sky_rgb[v]);
+            }
+            if channels.depth {
+                col.depth_m[i] = f32::INFINITY;
+            }
+            col.class_ids[i] = class::SKY;
             next -= 1;
         }
     }
@@ -453,12 +472,6 @@ fn shaded(class_id: u8, shade: f64, haze: f64) -> [u8; 3] {
         let lit = base[k] as f64 * shade;
         (lit * (1.0 - haze) + sky[k] as f64 * haze).clamp(0.0, 255.0) as u8
     })
-}
-
-fn write_pixel(out: &mut Frame, i: usize, class_id: u8, rgb: [u8; 3], depth_m: f32) {
-    out.rgb[i * 3..i * 3 + 3].copy_from_slice(&rgb);
-    out.class_ids[i] = class_id;
-    out.depth_m[i] = depth_m;
 }
 
 #[cfg(test)]
