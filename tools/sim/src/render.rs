@@ -166,8 +166,11 @@ impl Renderer {
             }
             march(0, first);
         });
+        // Pixels as [u8; 3]: a pixel is one move, not a three-byte slice copy.
+        let rgb_out = out.rgb.as_chunks_mut::<3>().0;
         for (k, col) in scratch.iter().enumerate() {
             let u0 = k * band;
+            let rgb_in = col.rgb.as_chunks::<3>().0;
             for b0 in (0..col.width).step_by(COLUMN_BLOCK) {
                 let n = COLUMN_BLOCK.min(col.width - b0);
                 for v in 0..h {
@@ -175,8 +178,7 @@ impl Renderer {
                     let pixels = (0..n).map(|j| (from + j * h, to + j));
                     if channels.rgb {
                         for (from, to) in pixels.clone() {
-                            out.rgb[to * 3..to * 3 + 3]
-                                .copy_from_slice(&col.rgb[from * 3..from * 3 + 3]);
+                            rgb_out[to] = rgb_in[from];
                         }
                     }
                     if channels.class_ids {
