@@ -244,6 +244,8 @@ fn per_method_a_benchmark_trial_drives_the_track_its_graph_drives_as_processes_e
                 seconds,
                 "--trace",
                 traces.to_str().unwrap(),
+                "--out",
+                traces.join("results.json").to_str().unwrap(),
                 "--jobs",
                 jobs,
             ],
@@ -258,6 +260,21 @@ fn per_method_a_benchmark_trial_drives_the_track_its_graph_drives_as_processes_e
         traces
     };
     let (first, second) = (bench("bench-a", "3"), bench("bench-b", "1"));
+    // The results file: every trial's summary, in the table's order.
+    let trials = |dir: &std::path::Path| {
+        let text = std::fs::read_to_string(dir.join("results.json")).unwrap();
+        serde_json::from_str::<serde_json::Value>(&text).unwrap()["trials"].clone()
+    };
+    let (a, b) = (trials(&first), trials(&second));
+    assert_eq!(
+        a.as_array().map(Vec::len),
+        Some(methods_and_graphs.len()),
+        "one trial per method: {a}"
+    );
+    assert_eq!(
+        a, b,
+        "the results of 3 trials side by side and of one at a time"
+    );
     let mut parted = Vec::new();
     for (method, graph) in &methods_and_graphs {
         let graph = farsight_tests::repo_root().join(graph);

@@ -113,6 +113,10 @@ pub fn swath_labels(
     let radial = geometry.radial_bins();
     let classes = rules.class_speeds_mps.len();
     // Per swath: cells per class, then all cells.
+    if classes == 0 {
+        // No class to label a swath with.
+        return vec![None; geometry.heading_bins * radial];
+    }
     let mut counts = vec![vec![0usize; classes + 1]; geometry.heading_bins * radial];
     let class_of = rules.classifier();
     for_each_swath_cell(

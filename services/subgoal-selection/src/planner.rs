@@ -495,6 +495,54 @@ mod tests {
     }
 
     #[test]
+    fn each_costmap_cell_lands_where_its_centre_is_even_half_off_the_grid() {
+        // A 0.5 m message over a 1 m grid, hanging off its north-west
+        // corner, with a short payload (the last row cut): every cell goes
+        // to the grid cell its centre rounds to, the last one written
+        // wins, and nothing outside the grid or past the payload is read.
+        let cfg = WorldPlannerConfig {
+            margin_m: 5.0,
+            inflation_radius_m: 0.0,
+            ..Default::default()
+        };
+        let mut p = WorldPlanner::new([0.0, 0.0], [10.0, 0.0], &cfg);
+        let header = CostmapHeader {
+            stamp: Stamp::default(),
+            layer: CostmapLayer::FUSED,
+            width: 13,
+            height: 9,
+            resolution_m: 0.5,
+            x_min_m: -7.3,
+            y_max_m: 6.2,
+        };
+        let cells: Vec<CostCell> = (0..13 * 9 - 5)
+            .map(|k| CostCell {
+                cost_s_per_m: 1.0 + k as f32,
+                variance: 0.0,
+            })
+            .collect();
+        let mut want = std::collections::BTreeMap::new();
+        for (k, c) in cells.iter().enumerate() {
+            if let Some(at) = p.cell(header.cell_centre_m(k)) {
+                want.insert(at, c.cost_s_per_m);
+            }
+        }
+        assert!(want.len() > 10, "some cells land on the grid");
+        p.apply_costmap(&header, &cells);
+        let w = p.dstar.grid().width;
+        for y in 0..p.dstar.grid().height {
+            for x in 0..w {
+                let expected = want
+                    .get(&(x, y))
+                    .copied()
+                    .unwrap_or(cfg.unknown_cost_s_per_m);
+                assert_eq!(p.base[y * w + x], expected, "cell ({x}, {y})");
+                assert_eq!(p.dstar.grid().get(x, y), expected, "cell ({x}, {y})");
+            }
+        }
+    }
+
+    #[test]
     fn a_wall_in_a_costmap_message_bends_the_path() {
         let cfg = WorldPlannerConfig {
             margin_m: 10.0,

@@ -257,7 +257,7 @@ fn protocol(a: &NavArgs, rows: &[(String, String, PathBuf)]) -> Result<Protocol>
 /// The benchmark's rows: name, graph file as shown, graph file's path.
 fn rows(a: &NavArgs) -> Result<Vec<(String, String, PathBuf)>> {
     if !a.graphs.is_empty() {
-        return Ok(a
+        let rows: Vec<(String, String, PathBuf)> = a
             .graphs
             .iter()
             .map(|g| {
@@ -266,7 +266,16 @@ fn rows(a: &NavArgs) -> Result<Vec<(String, String, PathBuf)>> {
                     .map_or("graph".into(), |s| s.to_string_lossy());
                 (stem.into_owned(), g.display().to_string(), g.clone())
             })
-            .collect());
+            .collect();
+        // A row is named by its file's stem, and trials by their row's name.
+        for (i, (name, shown, _)) in rows.iter().enumerate() {
+            if let Some((_, other, _)) = rows[..i].iter().find(|(n, _, _)| n == name) {
+                anyhow::bail!(
+                    "--graphs {other} and {shown}: both rows would be named `{name}` (rows are named by the file's stem): rename one"
+                );
+            }
+        }
+        return Ok(rows);
     }
     if let Some(m) = a
         .methods
@@ -354,11 +363,15 @@ pub fn run(a: NavArgs) -> Result<()> {
             );
         }
     }
+    anyhow::ensure!(
+        a.jobs != Some(0),
+        "--jobs 0: expected at least one trial at a time"
+    );
     let jobs = crate::jobs::count(a.jobs, order.len());
     // Side by side, each trial's renderer gets its share of the cores (the
-    // image is the same for any number of bands).
+    // image is the same for any number of bands), at most its usual 4.
     let render_threads = if jobs > 1 {
-        (crate::jobs::cores() / jobs).max(1)
+        (crate::jobs::cores() / jobs).clamp(1, 4)
     } else {
         0
     };
@@ -786,5 +799,15 @@ mod tests {
         let a = Cli::parse_from(["x", "--methods", "dstar_no_far_field,warp_drive"]).nav;
         let e = rows(&a).unwrap_err().to_string();
         assert!(e.contains("warp_drive") && e.contains("fitam_gt"), "{e}");
+        // Rows are named by the graph file's stem: two files with one stem
+        // would be one row's trials.
+        let a = Cli::parse_from(["x", "--graphs", "a/hip.toml,b/hip.toml"]).nav;
+        let e = rows(&a).unwrap_err().to_string();
+        assert!(
+            e.contains("a/hip.toml and b/hip.toml") && e.contains("`hip`"),
+            "{e}"
+        );
+        let a = Cli::parse_from(["x", "--graphs", "a/hip.toml,b/lrn.toml"]).nav;
+        assert_eq!(rows(&a).unwrap().len(), 2);
     }
 }

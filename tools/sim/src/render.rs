@@ -542,6 +542,21 @@ mod tests {
         one.render_channels(&world, [100.0, 101.3, 0.2], &mut rgb_only, only);
         assert_eq!(rgb_only.rgb, full.rgb);
         assert!(rgb_only.class_ids.iter().all(|&c| c == 0), "not filled");
+        for (depth, class_ids) in [(true, false), (false, true)] {
+            let mut f = Frame::default();
+            let only = Channels {
+                rgb: false,
+                depth,
+                class_ids,
+            };
+            one.render_channels(&world, [100.0, 101.3, 0.2], &mut f, only);
+            assert!(f.rgb.iter().all(|&c| c == 0), "{only:?}: colour not filled");
+            if depth {
+                assert_eq!(f.depth_m, full.depth_m, "{only:?}");
+            } else {
+                assert_eq!(f.class_ids, full.class_ids, "{only:?}");
+            }
+        }
         assert!(full.class_ids.contains(&class::WALL) && full.class_ids.contains(&class::BUSHES));
     }
 

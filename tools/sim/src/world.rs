@@ -241,7 +241,18 @@ impl World {
     /// Sets the terrain height field (one value per cell).
     pub fn set_ground(&mut self, heights_m: Vec<f32>) {
         assert_eq!(heights_m.len(), self.width * self.height);
-        self.max_ground_m = heights_m.iter().fold(0.0f32, |m, &h| m.max(h));
+        // A NaN height bounds nothing: the renderer then never ends early.
+        self.max_ground_m =
+            heights_m.iter().fold(
+                0.0f32,
+                |m, &h| {
+                    if h.is_nan() {
+                        f32::INFINITY
+                    } else {
+                        m.max(h)
+                    }
+                },
+            );
         self.ground_m = Some(heights_m);
     }
 
