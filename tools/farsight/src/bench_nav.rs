@@ -322,6 +322,10 @@ pub fn run(a: NavArgs) -> Result<()> {
         "--robot-radius-m {}: expected a radius above 0 m",
         a.robot_radius_m
     );
+    anyhow::ensure!(
+        a.jobs != Some(0),
+        "--jobs 0: expected at least one trial at a time"
+    );
     for sc in &a.scenarios {
         // An unknown name fails here, not after hours of other trials.
         farsight_sim::scenario::scenario(sc, 1)?;
@@ -363,10 +367,6 @@ pub fn run(a: NavArgs) -> Result<()> {
             );
         }
     }
-    anyhow::ensure!(
-        a.jobs != Some(0),
-        "--jobs 0: expected at least one trial at a time"
-    );
     let jobs = crate::jobs::count(a.jobs, order.len());
     // Side by side, each trial's renderer gets its share of the cores (the
     // image is the same for any number of bands), at most its usual 4.
@@ -809,5 +809,9 @@ mod tests {
         );
         let a = Cli::parse_from(["x", "--graphs", "a/hip.toml,b/lrn.toml"]).nav;
         assert_eq!(rows(&a).unwrap().len(), 2);
+        // Refused before any graph is loaded or trial run.
+        let a = Cli::parse_from(["x", "--jobs", "0"]).nav;
+        let e = run(a).unwrap_err().to_string();
+        assert!(e.starts_with("--jobs 0:"), "{e}");
     }
 }

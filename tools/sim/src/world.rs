@@ -323,6 +323,24 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_top_bound_covers_every_cell_and_a_nan_height_lifts_it_away() {
+        let mut w = World::new(20, 10, Cover::Grass);
+        assert_eq!(w.top_bound_m(), 0.0);
+        w.set_obstacle(3, 4, Obstacle::Tree);
+        w.set_ground((0..200).map(|i| i as f32 * 0.01).collect());
+        let highest = (0..20)
+            .flat_map(|x| (0..10).map(move |y| (x, y)))
+            .map(|(x, y)| w.look(x, y).top_m)
+            .fold(f32::MIN, f32::max);
+        assert!(w.top_bound_m() >= highest && highest > 8.0, "{highest}");
+        // A NaN height bounds nothing: no march may end early.
+        let mut heights = vec![0.0; 200];
+        heights[7] = f32::NAN;
+        w.set_ground(heights);
+        assert_eq!(w.top_bound_m(), f32::INFINITY);
+    }
+
+    #[test]
     fn costs_follow_fitam_and_obstacles_dominate() {
         let mut w = World::new(10, 10, Cover::Grass);
         w.set_cover(1, 1, Cover::Road);
