@@ -34,6 +34,9 @@ use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
 const SQRT2: f64 = std::f64::consts::SQRT_2;
+/// Slots of a vertex's `[g, rhs]` pair in [`DStarLite`].
+const G: usize = 0;
+const RHS: usize = 1;
 const NEIGHBOURS: [(i64, i64); 8] = [
     (1, 0),
     (-1, 0),
@@ -438,8 +441,10 @@ pub struct DStarLite {
     goal: (usize, usize),
     scale: f64,
     km: f64,
-    g: Vec<f64>,
-    rhs: Vec<f64>,
+    /// Each vertex's [g, rhs], side by side: nearly every read of one
+    /// (a key, a consistency test) reads the other, so one cache line
+    /// serves both on grids tens of megabytes large.
+    gr: Vec<[f64; 2]>,
     open: VertexQueue,
     /// Vertices waiting in [`Self::set_costs`] for their update, and
     /// which are (so each is updated once).
@@ -487,8 +492,7 @@ impl DStarLite {
             goal,
             scale,
             km: 0.0,
-            g: vec![f64::INFINITY; n],
-            rhs: vec![f64::INFINITY; n],
+            gr: vec![[f64::INFINITY; 2]; n],
             open: VertexQueue::new(n),
             to_update: Vec::new(),
             dirty: vec![false; n],
@@ -496,7 +500,7 @@ impl DStarLite {
             unsearched: true,
         };
         let gi = p.idx(goal);
-        p.rhs[gi] = 0.0;
+        p.gr[gi][RHS] = 0.0;
         let k = p.key(gi);
         p.open.set(gi, k);
         p
@@ -519,13 +523,16 @@ impl DStarLite {
     }
 
     fn cell(&self, i: usize) -> (usize, usize) {
-        // One division: every key computes a vertex's cell.
-        let y = i / self.grid.width;
-        (i - y * self.grid.width, y)
+        // One division, in 32 bits (vertex indices fit, see `new`): every
+        // key computes a vertex's cell, and a 64-bit division was a tenth
+        // of a repair.
+        let (i32_, w) = (i as u32, self.grid.width as u32);
+        let y = i32_ / w;
+        ((i32_ - y * w) as usize, y as usize)
     }
 
     fn key(&self, i: usize) -> Key {
-        let m = self.g[i].min(self.rhs[i]);
+        let m = self.gr[i][G].min(self.gr[i][RHS]);
         Key(
             m + octile(self.start, self.cell(i), self.scale) + self.km,
             m,
@@ -546,13 +553,13 @@ impl DStarLite {
             // neighbour's cost and g once (as `around` + `step_cost_around`
             // compute them, to the bit). Updating a far-field frame's
             // vertices is mostly this.
-            let (c, g, r) = (&grid.costs, &self.g, grid.resolution_m);
+            let (c, gr, r) = (&grid.costs, &self.gr, grid.resolution_m);
             let via = |j: usize, diagonal: bool| {
                 let cj = c[j];
                 if CostGrid::blocked(cj) {
                     f64::INFINITY
                 } else {
-                    cj as f64 * r * if diagonal { SQRT2 } else { 1.0 } + g[j]
+                    cj as f64 * r * if diagonal { SQRT2 } else { 1.0 } + gr[j][G]
                 }
             };
             let (east, west, south, north) = (u + 1, u - 1, u + w, u - w);
@@ -578,7 +585,7 @@ impl DStarLite {
         }
         let a = self.grid.around(u);
         a.iter()
-            .map(|(k, s)| self.grid.step_cost_around(&a, k, s) + self.g[s])
+            .map(|(k, s)| self.grid.step_cost_around(&a, k, s) + self.gr[s][G])
             .fold(f64::INFINITY, f64::min)
     }
 
@@ -591,10 +598,10 @@ impl DStarLite {
     fn update_vertex(&mut self, u: usize) {
         if u != self.goal_index() {
             let rhs = self.best_successor(u);
-            if rhs == self.rhs[u] {
+            if rhs == self.gr[u][RHS] {
                 return;
             }
-            self.rhs[u] = rhs;
+            self.gr[u][RHS] = rhs;
         }
         self.requeue(u);
     }
@@ -605,7 +612,7 @@ impl DStarLite {
 
     /// Queues `u` if it is inconsistent, takes it out otherwise.
     fn requeue(&mut self, u: usize) {
-        if self.g[u] != self.rhs[u] {
+        if self.gr[u][G] != self.gr[u][RHS] {
             let k = self.key(u);
             self.open.set(u, k);
         } else {
@@ -619,26 +626,26 @@ impl DStarLite {
         self.unsearched = false;
         let (si, goal) = (self.idx(self.start), self.goal_index());
         while let Some((k_old, ui)) = self.top() {
-            if k_old >= self.key(si) && self.rhs[si] == self.g[si] {
+            if k_old >= self.key(si) && self.gr[si][RHS] == self.gr[si][G] {
                 break;
             }
             let k_new = self.key(ui);
             self.expanded += 1;
             if k_old < k_new {
                 self.open.set(ui, k_new);
-            } else if self.g[ui] > self.rhs[ui] {
+            } else if self.gr[ui][G] > self.gr[ui][RHS] {
                 // u got cheaper: a predecessor's rhs can only drop to the
                 // way through u (the optimised version's O(1) update).
-                self.g[ui] = self.rhs[ui];
+                self.gr[ui][G] = self.gr[ui][RHS];
                 self.open.remove(ui);
                 // Only the vertices whose rhs dropped change: the rest keep
                 // their queue place and key (km is fixed during a search).
                 let a = self.grid.around(ui);
                 for (k, s) in a.iter() {
                     if s != goal {
-                        let via_u = self.grid.step_cost_around(&a, k, ui) + self.g[ui];
-                        if via_u < self.rhs[s] {
-                            self.rhs[s] = via_u;
+                        let via_u = self.grid.step_cost_around(&a, k, ui) + self.gr[ui][G];
+                        if via_u < self.gr[s][RHS] {
+                            self.gr[s][RHS] = via_u;
                             self.requeue(s);
                         }
                     }
@@ -646,22 +653,23 @@ impl DStarLite {
             } else {
                 // u got dearer: only predecessors whose best way was through
                 // u need their rhs recomputed.
-                let g_old = self.g[ui];
-                self.g[ui] = f64::INFINITY;
+                let g_old = self.gr[ui][G];
+                self.gr[ui][G] = f64::INFINITY;
                 let a = self.grid.around(ui);
                 for (k, s) in a.iter() {
-                    if s != goal && self.rhs[s] == self.grid.step_cost_around(&a, k, ui) + g_old {
-                        self.rhs[s] = self.best_successor(s);
+                    if s != goal && self.gr[s][RHS] == self.grid.step_cost_around(&a, k, ui) + g_old
+                    {
+                        self.gr[s][RHS] = self.best_successor(s);
                         self.requeue(s);
                     }
                 }
                 if ui != goal {
-                    self.rhs[ui] = self.best_successor(ui);
+                    self.gr[ui][RHS] = self.best_successor(ui);
                 }
                 self.requeue(ui);
             }
         }
-        let c = self.g[si];
+        let c = self.gr[si][G];
         c.is_finite().then_some(c)
     }
 
@@ -676,8 +684,7 @@ impl DStarLite {
     /// again (a guide moves the goal every frame), this only resets the
     /// search's values.
     pub fn retarget(&mut self, goal: (usize, usize)) {
-        self.g.fill(f64::INFINITY);
-        self.rhs.fill(f64::INFINITY);
+        self.gr.fill([f64::INFINITY; 2]);
         for &(_, v) in &self.open.heap {
             self.open.place[v as usize] = VertexQueue::ABSENT;
         }
@@ -687,7 +694,7 @@ impl DStarLite {
         self.goal = goal;
         self.unsearched = true;
         let gi = self.idx(goal);
-        self.rhs[gi] = 0.0;
+        self.gr[gi][RHS] = 0.0;
         let k = self.key(gi);
         self.open.set(gi, k);
     }
@@ -773,14 +780,16 @@ impl DStarLite {
             let next = self
                 .grid
                 .neighbours(c)
-                .map(|s| (s, self.grid.step_cost(c, s) + self.g[self.idx(s)]))
+                .map(|s| (s, self.grid.step_cost(c, s) + self.gr[self.idx(s)][G]))
                 .min_by(|a, b| a.1.total_cmp(&b.1));
             match next {
                 // Costs are not negative, so along a settled path g never
                 // rises; a step that raises it means the
                 // search left an inconsistent vertex here, and following
                 // it could cycle. No path is the safe answer.
-                Some((s, _)) if self.g[self.idx(s)] > self.g[self.idx(c)] => return Vec::new(),
+                Some((s, _)) if self.gr[self.idx(s)][G] > self.gr[self.idx(c)][G] => {
+                    return Vec::new()
+                }
                 Some((s, v)) if v.is_finite() => {
                     path.push(s);
                     c = s;
@@ -895,7 +904,7 @@ mod tests {
                 assert_eq!(all.set_costs(changes.iter().copied()), n_one);
                 assert_eq!(one.compute(), all.compute());
                 assert_eq!(one.path(), all.path());
-                assert_eq!((&one.g, &one.rhs, one.km), (&all.g, &all.rhs, all.km));
+                assert_eq!((&one.gr, one.km), (&all.gr, all.km));
                 assert_eq!(one.open.heap.len(), all.open.heap.len());
             }
         }
@@ -947,10 +956,7 @@ mod tests {
             assert_eq!(d.compute(), fresh.compute(), "trial {trial}");
             assert_eq!(d.path(), fresh.path(), "trial {trial}");
             assert_eq!(d.grid(), fresh.grid());
-            assert!(
-                d.g == fresh.g && d.rhs == fresh.rhs,
-                "trial {trial}: the same search"
-            );
+            assert!(d.gr == fresh.gr, "trial {trial}: the same search");
             assert_eq!(d.open.heap.len(), fresh.open.heap.len(), "trial {trial}");
             let want = astar(&grid, moved, goal, 0.2).map(|(_, c)| c);
             match (d.compute(), want) {
