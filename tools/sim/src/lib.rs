@@ -12,6 +12,7 @@
 //! - [`fitam_protocol`]: FITAM's kinematic sense-plan-act evaluation (section V);
 //! - [`stall`]: HIP's stuck and trapped heuristics, for [`sticky`] and [`episode`]'s end-trial rule;
 //! - [`sticky`]: HIP's data collection (sticky random actions) and its trajectory library;
+//! - [`hip_dataset`]: the examples HIP's learned density trains on (a view and the future after it);
 //! - [`episode`]: one drive: robot, metrics (reached, time, distance, cost,
 //!   collisions, interventions) and the map PNG with the track.
 //!
@@ -30,6 +31,7 @@
 pub mod episode;
 pub mod expert;
 pub mod fitam_protocol;
+pub mod hip_dataset;
 pub mod labels;
 pub mod render;
 pub mod rng;

@@ -4,6 +4,7 @@
 //! farsight-sim render --scenario bug-trap --out out/sim   # one RGB/class/depth view as PNGs, and the map
 //! farsight-sim bench                                      # renderer frames/s at 640x360, one core
 //! farsight-sim run --scenario bug-trap                    # join the stage graph as the robot
+//! farsight-sim hip-dataset --out data/hip                 # HIP's learned density's training set
 //! ```
 
 use anyhow::{Context, Result};
@@ -24,6 +25,23 @@ use std::time::Instant;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+}
+
+/// HIP's data collection (`hip-library`, `hip-dataset`).
+#[derive(clap::Args)]
+struct DriveArgs {
+    #[arg(long, default_value = "hip-in-distribution")]
+    scenario: String,
+    /// Simulated seconds of driving, respawns included.
+    #[arg(long, default_value_t = 1800.0)]
+    seconds: f64,
+    /// The drive's seed, and the scenario's (HIP's worlds are fixed; the
+    /// seed draws their spawns).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Points per future trajectory H (the paper: 10, at 5 Hz).
+    #[arg(long, default_value_t = 10)]
+    horizon: usize,
 }
 
 #[derive(Subcommand)]
@@ -48,20 +66,29 @@ enum Command {
     /// collision, the sequences that ended in one removed, the futures
     /// clustered by k-means. Written as subgoal-selection's `hip_library`.
     HipLibrary {
-        #[arg(long, default_value = "hip-in-distribution")]
-        scenario: String,
-        /// Simulated seconds of driving.
-        #[arg(long, default_value_t = 1800.0)]
-        seconds: f64,
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
+        #[command(flatten)]
+        drive: DriveArgs,
         /// Library size K (the paper: 200).
         #[arg(long, default_value_t = 200)]
         k: usize,
-        /// Points per trajectory H (the paper: 10, at 5 Hz).
-        #[arg(long, default_value_t = 10)]
-        horizon: usize,
         #[arg(long, default_value = "hip-library.toml")]
+        out: PathBuf,
+    },
+    /// The training set of HIP's learned density (section V): the same
+    /// sticky random drive as `hip-library`, every 5 Hz pose with 10 poses
+    /// after it an example of the front camera's view there and the
+    /// future, robot frame (`farsight_train.py hip` reads the folder).
+    /// About 1.7 examples come of a second driven on hip-in-distribution.
+    HipDataset {
+        #[command(flatten)]
+        drive: DriveArgs,
+        /// The model input the views are resized to, as the inference
+        /// stage resizes the simulator's 640x360 camera.
+        #[arg(long, default_value_t = 128)]
+        image_width: u32,
+        #[arg(long, default_value_t = 72)]
+        image_height: u32,
+        #[arg(long)]
         out: PathBuf,
     },
     /// Renderer frames per second at 640x360, per scenario.
@@ -84,6 +111,39 @@ fn write_png(
     let header = ImageHeader::packed(Stamp::default(), 0, w, h, enc);
     let png = farsight_imaging::encode_png(&header, data)?;
     std::fs::write(path, png).with_context(|| format!("writing {}", path.display()))
+}
+
+/// HIP's data collection for `hip-library` and `hip-dataset`: the
+/// scenario, the drive's settings and the drive, the arguments checked.
+fn sticky_drive(
+    &DriveArgs {
+        scenario: ref name,
+        seconds,
+        seed,
+        horizon,
+    }: &DriveArgs,
+) -> Result<(
+    farsight_sim::scenario::Scenario,
+    farsight_sim::sticky::StickyConfig,
+    farsight_sim::sticky::StickyDrive,
+)> {
+    use farsight_sim::sticky::{sticky_random_drive, StickyConfig};
+    anyhow::ensure!(
+        seconds.is_finite() && (1.0..=1e6).contains(&seconds),
+        "--seconds {seconds}: expected 1 to 1,000,000 simulated seconds"
+    );
+    anyhow::ensure!(
+        (1..=100).contains(&horizon),
+        "--horizon {horizon}: expected 1-100 points"
+    );
+    let s = scenario(name, seed)?;
+    let cfg = StickyConfig {
+        duration_s: seconds,
+        ..Default::default()
+    };
+    eprintln!("driving {seconds:.0} s of sticky random actions on {name} ...");
+    let drive = sticky_random_drive(&s.world, &cfg, seed);
+    Ok((s, cfg, drive))
 }
 
 fn main() -> Result<()> {
@@ -172,29 +232,18 @@ fn main() -> Result<()> {
             );
         }
         Command::HipLibrary {
-            scenario: name,
-            seconds,
-            seed,
+            drive: args,
             k,
-            horizon,
             out,
         } => {
-            use farsight_sim::sticky::{sticky_random_drive, trajectory_library, StickyConfig};
+            use farsight_sim::sticky::trajectory_library;
             anyhow::ensure!(
-                seconds.is_finite() && (1.0..=1e6).contains(&seconds),
-                "--seconds {seconds}: expected 1 to 1,000,000 simulated seconds"
+                (1..=10_000).contains(&k),
+                "--k {k}: expected 1-10000 trajectories"
             );
-            anyhow::ensure!(
-                (1..=10_000).contains(&k) && (1..=100).contains(&horizon),
-                "--k {k} / --horizon {horizon}: expected 1-10000 trajectories of 1-100 points"
-            );
-            let s = scenario(&name, seed)?;
-            let cfg = StickyConfig {
-                duration_s: seconds,
-                ..Default::default()
-            };
-            eprintln!("driving {seconds:.0} s of sticky random actions on {name} ...");
-            let drive = sticky_random_drive(&s.world, &cfg, seed);
+            let (_, cfg, drive) = sticky_drive(&args)?;
+            let (name, seconds, seed, horizon) =
+                (args.scenario, args.seconds, args.seed, args.horizon);
             let poses: usize = drive.segments.iter().map(|s| s.len()).sum();
             let mut lib = trajectory_library(&drive, k, horizon, cfg.record_every_s, seed);
             // Millimetres are plenty for a planner on 1 m cells.
@@ -216,6 +265,66 @@ fn main() -> Result<()> {
             println!(
                 "wrote {} ({k} trajectories of {horizon} points from {poses} poses, {} collisions)",
                 out.display(),
+                drive.collisions
+            );
+        }
+        Command::HipDataset {
+            drive: args,
+            image_width,
+            image_height,
+            out,
+        } => {
+            use farsight_sim::hip_dataset::{hip_examples, write_hip_dataset, HipDatasetManifest};
+            anyhow::ensure!(
+                (8..=1024).contains(&image_width) && (8..=1024).contains(&image_height),
+                "--image-width {image_width} / --image-height {image_height}: expected 8-1024 pixels each"
+            );
+            let (s, cfg, drive) = sticky_drive(&args)?;
+            let (name, seconds, seed, horizon) =
+                (args.scenario, args.seconds, args.seed, args.horizon);
+            let examples = hip_examples(&drive, horizon);
+            anyhow::ensure!(
+                !examples.is_empty(),
+                "no collision-free sequence had {horizon} poses after a pose: drive longer"
+            );
+            let camera = front_camera(640, 360);
+            let manifest = HipDatasetManifest {
+                format: 1,
+                scenario: name.clone(),
+                seed,
+                drive_seconds: seconds,
+                collisions_removed: drive.collisions,
+                sequences: drive.segments.len(),
+                examples: examples.len(),
+                horizon,
+                step_s: cfg.record_every_s,
+                camera_width: camera.model.width,
+                camera_height: camera.model.height,
+                image_width,
+                image_height,
+            };
+            let t0 = Instant::now();
+            write_hip_dataset(
+                &out,
+                &s.world,
+                &camera,
+                &examples,
+                &manifest,
+                |done, total| {
+                    eprint!(
+                        "\rrendering views {done}/{total} ({:.0} s)   ",
+                        t0.elapsed().as_secs_f64()
+                    );
+                    if done == total {
+                        eprintln!();
+                    }
+                },
+            )?;
+            println!(
+                "wrote {} ({} examples from {} sequences, {} collisions removed)",
+                out.display(),
+                examples.len(),
+                drive.segments.len(),
                 drive.collisions
             );
         }
