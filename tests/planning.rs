@@ -613,15 +613,12 @@ mod graph {
         }
     }
 
-    /// HIP with a learned model: a test ONNX model (written by the test
-    /// support, no training) whose log q depends on the image's colour.
-    /// The same library and costmap give a different choice for a green and
-    /// a red camera frame, through ONNX Runtime in the subgoal stage.
-    #[test]
-    fn hip_learned_term_comes_from_an_onnx_model_on_the_camera_frame() {
-        let ns = Namespace::new("hiponnx");
-        let bus = ns.bus("hip-onnx-test");
-        // Straight (ends in the goal region), left and right (miss it).
+    /// A HIP library (straight, which ends in the goal region of a goal
+    /// ahead; left and right, which miss it) and a test ONNX model for it
+    /// (written by the test support, no training) whose log q depends on
+    /// the image's mean colour: green frames favour left, red ones
+    /// straight. The model's config is `hip-model.toml`.
+    fn write_hip_library_and_colour_model(ns: &Namespace) {
         let line = |dx: f64, dy: f64| {
             (1..=10)
                 .map(|i| format!("[{}, {}]", dx * i as f64, dy * i as f64))
@@ -637,7 +634,7 @@ mod graph {
                 line(0.3, -0.25)
             ),
         );
-        // log q = w . mean colour: green frames favour left, red ones straight.
+        // log q = w . mean colour.
         let model = farsight_tests::onnx_fixture::mean_colour_linear(
             8,
             8,
@@ -648,32 +645,69 @@ mod graph {
             ],
         );
         std::fs::write(ns.write("hip.onnx", "").as_path(), model).unwrap();
-        ns.write(
-            "hip-model.toml",
-            "model = \"hip.onnx\"\n[input]\nname = \"image\"\nlayout = \"nchw\"\nwidth = 8\nheight = 8\nresize = \"bilinear\"\ncolor = \"rgb\"\nscale = 0.00392156862745098\n[[outputs]]\nname = \"out\"\nkind = \"trajectory_log_likelihood\"\nclasses = 3\n",
-        );
-        let cfg = ns.write(
-            "subgoal-selection.toml",
-            "method = \"hip\"\nhip_library = \"hip-library.toml\"\nhip_model = \"hip-model.toml\"\nreplan_rate_hz = 20.0\n",
-        );
-        let planned = bus.subscriber(&topics::path("planned")).unwrap();
-        let planner = ns.start_stage("farsight-subgoal-selection", "subgoal-selection", &cfg);
-        let pose = bus.publisher(&topics::pose()).unwrap();
-        let goal = bus.publisher(&topics::goal()).unwrap();
-        let fused = bus
-            .slice_publisher(&topics::costmap("fused"), 11 * 11)
-            .unwrap();
-        let image = bus
-            .slice_publisher(&topics::camera_image("front"), 16 * 16 * 3)
-            .unwrap();
-        let (header, cells) = near_field(5, |_, _| false);
-        let choose_with = |rgb: [u8; 3], want_y: &dyn Fn(f32) -> bool| {
+        ns.write("hip-model.toml", &hip_model_config(3));
+    }
+
+    fn hip_model_config(classes: usize) -> String {
+        format!("model = \"hip.onnx\"\n[input]\nname = \"image\"\nlayout = \"nchw\"\nwidth = 8\nheight = 8\nresize = \"bilinear\"\ncolor = \"rgb\"\nscale = 0.00392156862745098\n[[outputs]]\nname = \"out\"\nkind = \"trajectory_log_likelihood\"\nclasses = {classes}\n")
+    }
+
+    /// The subgoal stage running HIP with the colour model, and the test's
+    /// ends of its topics.
+    struct HipRig {
+        planned: farsight_interfaces::transport::ipc::Subscriber<farsight_interfaces::msg::Path>,
+        health: farsight_interfaces::transport::ipc::Subscriber<StageHealth>,
+        planner: farsight_tests::Proc,
+        pose: farsight_interfaces::transport::ipc::Publisher<Pose>,
+        goal: farsight_interfaces::transport::ipc::Publisher<NavGoal>,
+        fused: farsight_interfaces::transport::ipc::SlicePublisher<CostmapHeader, CostCell>,
+        image: farsight_interfaces::transport::ipc::SlicePublisher<ImageHeader, u8>,
+    }
+
+    impl HipRig {
+        fn start(
+            ns: &Namespace,
+            bus: &farsight_interfaces::transport::ipc::Bus,
+            hip: &str,
+        ) -> Self {
+            write_hip_library_and_colour_model(ns);
+            let cfg = ns.write(
+                "subgoal-selection.toml",
+                &format!("method = \"hip\"\nhip_library = \"hip-library.toml\"\nhip_model = \"hip-model.toml\"\nreplan_rate_hz = 20.0\n{hip}"),
+            );
+            Self {
+                planned: bus.subscriber(&topics::path("planned")).unwrap(),
+                health: bus
+                    .subscriber(&topics::health("subgoal-selection"))
+                    .unwrap(),
+                planner: ns.start_stage("farsight-subgoal-selection", "subgoal-selection", &cfg),
+                pose: bus.publisher(&topics::pose()).unwrap(),
+                goal: bus.publisher(&topics::goal()).unwrap(),
+                fused: bus
+                    .slice_publisher(&topics::costmap("fused"), 11 * 11)
+                    .unwrap(),
+                image: bus
+                    .slice_publisher(&topics::camera_image("front"), 16 * 16 * 3)
+                    .unwrap(),
+            }
+        }
+
+        /// Feeds the pose, the goal, `cells` and (if `rgb`) a plain camera
+        /// frame until the planned path's last point satisfies `want_y`.
+        fn choose_with(
+            &self,
+            cells: &(CostmapHeader, Vec<CostCell>),
+            rgb: [u8; 3],
+            want_y: &dyn Fn(f32) -> bool,
+        ) {
             let pixels: Vec<u8> = (0..16 * 16).flat_map(|_| rgb).collect();
             let end = Instant::now() + Duration::from_secs(15);
             loop {
-                robot_at_origin_goal_ahead(&pose, &goal);
-                fused.publish_copy(restamped(header), &cells).unwrap();
-                image
+                robot_at_origin_goal_ahead(&self.pose, &self.goal);
+                self.fused
+                    .publish_copy(restamped(cells.0), &cells.1)
+                    .unwrap();
+                self.image
                     .publish_copy(
                         ImageHeader::packed(
                             farsight_tests::stamp_now(1),
@@ -686,7 +720,7 @@ mod graph {
                     )
                     .unwrap();
                 std::thread::sleep(Duration::from_millis(50));
-                if let Some(p) = planned.latest().unwrap() {
+                if let Some(p) = self.planned.latest().unwrap() {
                     if p.points.as_slice().last().is_some_and(|q| want_y(q[1])) {
                         return;
                     }
@@ -694,23 +728,31 @@ mod graph {
                 assert!(
                     Instant::now() < end,
                     "no HIP choice for {rgb:?}; last {:?}\n{}",
-                    planned
+                    self.planned
                         .latest()
                         .unwrap()
                         .map(|p| p.points.as_slice().to_vec()),
-                    planner.stderr_so_far()
+                    self.planner.stderr_so_far()
                 );
             }
-        };
-        choose_with([0, 255, 0], &|y| y > 2.0); // green: left
-        choose_with([255, 0, 0], &|y| y.abs() < 0.1); // red: straight
+        }
+    }
+
+    /// HIP with a learned model: the same library and costmap give a
+    /// different choice for a green and a red camera frame, through ONNX
+    /// Runtime in the subgoal stage.
+    #[test]
+    fn hip_learned_term_comes_from_an_onnx_model_on_the_camera_frame() {
+        let ns = Namespace::new("hiponnx");
+        let bus = ns.bus("hip-onnx-test");
+        let rig = HipRig::start(&ns, &bus, "");
+        let open = near_field(5, |_, _| false);
+        rig.choose_with(&open, [0, 255, 0], &|y| y > 2.0); // green: left
+        rig.choose_with(&open, [255, 0, 0], &|y| y.abs() < 0.1); // red: straight
 
         // A model scoring a different number of trajectories than the
         // library holds is refused at start, naming both.
-        ns.write(
-            "hip-model-4.toml",
-            "model = \"hip.onnx\"\n[input]\nname = \"image\"\nlayout = \"nchw\"\nwidth = 8\nheight = 8\nresize = \"bilinear\"\ncolor = \"rgb\"\nscale = 0.00392156862745098\n[[outputs]]\nname = \"out\"\nkind = \"trajectory_log_likelihood\"\nclasses = 4\n",
-        );
+        ns.write("hip-model-4.toml", &hip_model_config(4));
         let bad = ns.write(
             "subgoal-selection-bad.toml",
             "method = \"hip\"\nhip_library = \"hip-library.toml\"\nhip_model = \"hip-model-4.toml\"\n",
@@ -720,6 +762,61 @@ mod graph {
             err.contains("scores 4 trajectories but the HIP library holds 3"),
             "{err}"
         );
+    }
+
+    /// phi = 0 is HIP's Learner alone (section V): the costmap takes no
+    /// part, so a red frame (straight is likeliest) sends the robot
+    /// straight at a wall the hybrid steers round; and with no fresh frame
+    /// it plans nothing rather than follow the directive blind.
+    #[test]
+    fn hips_learner_alone_ignores_the_costmap_and_needs_a_fresh_frame() {
+        let wall_ahead = near_field(5, |x, y| x == 3 && y.abs() <= 1);
+        let ns = Namespace::new("hiplearner");
+        let bus = ns.bus("hip-learner-test");
+        let hybrid = HipRig::start(&ns, &bus, "[hip]\nphi = 0.75\n");
+        hybrid.choose_with(&wall_ahead, [255, 0, 0], &|y| y.abs() > 2.0);
+        drop(hybrid);
+        let ns = Namespace::new("hiplearner0");
+        let bus = ns.bus("hip-learner-test");
+        let learner = HipRig::start(&ns, &bus, "[hip]\nphi = 0.0\n");
+        learner.choose_with(&wall_ahead, [255, 0, 0], &|y| y.abs() < 0.1);
+        // Frames stop: within the input deadline (1 s) the term goes stale,
+        // and the Learner says so and plans nothing more.
+        let end = Instant::now() + Duration::from_secs(15);
+        let mut planned_after = 0;
+        loop {
+            robot_at_origin_goal_ahead(&learner.pose, &learner.goal);
+            learner
+                .fused
+                .publish_copy(restamped(wall_ahead.0), &wall_ahead.1)
+                .unwrap();
+            std::thread::sleep(Duration::from_millis(50));
+            let h = learner.health.latest().unwrap();
+            if h.as_ref()
+                .is_some_and(|h| h.reason.as_str().contains("no fresh learned term"))
+            {
+                // Drain what was planned before, then nothing more comes.
+                learner.planned.latest().unwrap();
+                for _ in 0..10 {
+                    robot_at_origin_goal_ahead(&learner.pose, &learner.goal);
+                    learner
+                        .fused
+                        .publish_copy(restamped(wall_ahead.0), &wall_ahead.1)
+                        .unwrap();
+                    std::thread::sleep(Duration::from_millis(50));
+                    if learner.planned.latest().unwrap().is_some() {
+                        planned_after += 1;
+                    }
+                }
+                break;
+            }
+            assert!(
+                Instant::now() < end,
+                "the Learner never said its term was stale: {h:?}\n{}",
+                learner.planner.stderr_so_far()
+            );
+        }
+        assert_eq!(planned_after, 0, "plans without a fresh frame");
     }
 
     /// costmap-fusion as a process, with the test's ends of its topics:

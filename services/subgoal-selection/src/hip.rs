@@ -43,7 +43,10 @@ pub struct Trajectory(pub Vec<[f64; 2]>);
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct HipPlannerConfig {
-    /// Weight of the geometric term (the paper's phi* = 0.75).
+    /// Weight of the geometric term (the paper's phi* = 0.75). 1 is the
+    /// paper's Geometric Costmap component, 0 its Learner alone: the
+    /// costmap then takes no part, lethal cells included, and nothing is
+    /// planned without a fresh learned term ([`Self::learner_only`]).
     pub phi: f64,
     /// Scale of the softmax-rescaled costmap: eta / H = 64 / 10.
     pub alpha: f64,
@@ -67,6 +70,14 @@ impl Default for HipPlannerConfig {
             region_width_m: 2.0,
             robot_radius_m: 0.4,
         }
+    }
+}
+
+impl HipPlannerConfig {
+    /// phi = 0: HIP's Learner component alone (section V, Fig. 4), which
+    /// sees the camera and no costmap.
+    pub fn learner_only(&self) -> bool {
+        self.phi == 0.0
     }
 }
 

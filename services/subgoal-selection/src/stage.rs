@@ -150,6 +150,14 @@ impl Validate for SubgoalStageConfig {
             "\"\"",
             "a trajectory library file when method = \"hip\"",
         )?;
+        ConfigError::check(
+            self.method != "hip"
+                || !self.hip.learner_only()
+                || !self.hip_model.as_os_str().is_empty(),
+            "hip.phi",
+            self.hip.phi,
+            "above 0 without a hip_model (phi = 0 is HIP's Learner alone: it plans on the learned term only)",
+        )?;
         farsight_interfaces::topics::validate_name(&self.costmap)
             .map_err(|e| ConfigError::invalid("costmap", &self.costmap, e.why))?;
         farsight_interfaces::topics::validate_name(&self.camera)

@@ -969,9 +969,24 @@ impl MapPlan {
                 // Off the map is unknown: the scaled value of the unknown cost
                 // would need the map's softmax sum, so count it as free (0)
                 // rather than invent one; the directive still pulls to the goal.
+                let learned = learned.as_deref().filter(|_| learned_fresh);
+                let learner_only = config.hip.learner_only();
+                if learner_only && learned.is_none() {
+                    // The Learner alone sees nothing but the camera: without
+                    // a fresh frame's term it would drive on the directive
+                    // blind.
+                    step.health.set(
+                        HealthState::DEGRADED,
+                        "HIP's Learner alone (phi = 0) has no fresh learned term: nothing to plan",
+                    );
+                    return;
+                }
                 let radius_m = config.hip.robot_radius_m;
                 let clearance_m = required_clearance_m(h, scaled, robot, radius_m);
                 let at = |q: [f64; 2]| {
+                    if learner_only {
+                        return 0.0;
+                    }
                     let w = p.to_world_frame(q);
                     if lethal_clearance_m(h, scaled, w, radius_m) < clearance_m {
                         return f64::INFINITY;
@@ -981,7 +996,6 @@ impl MapPlan {
                         _ => 0.0,
                     }
                 };
-                let learned = learned.as_deref().filter(|_| learned_fresh);
                 match choose(library, goal_robot, at, learned, &config.hip) {
                     Some(c) => {
                         tracing::debug!(?c, "HIP choice");
@@ -1505,6 +1519,24 @@ mod tests {
             (g[0] - 10.0).abs() < 1e-9 && (g[1] - 10.0).abs() < 1e-9,
             "placed with the pose at 10 s: {g:?}"
         );
+    }
+
+    #[test]
+    fn hips_learner_alone_needs_a_model() {
+        let lib = "method = \"hip\"\nhip_library = \"l.toml\"\n";
+        let e = farsight_stage::parse_config::<SubgoalStageConfig>(
+            &format!("{lib}[hip]\nphi = 0.0\n"),
+            "test",
+        )
+        .expect_err("phi = 0 without a model plans on nothing")
+        .to_string();
+        assert!(e.contains("hip.phi") && e.contains("hip_model"), "{e}");
+        for ok in [
+            format!("{lib}hip_model = \"m.toml\"\n[hip]\nphi = 0.0\n"),
+            format!("{lib}[hip]\nphi = 0.5\n"),
+        ] {
+            farsight_stage::parse_config::<SubgoalStageConfig>(&ok, "test").expect(&ok);
+        }
     }
 
     #[test]
