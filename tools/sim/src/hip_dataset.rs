@@ -9,15 +9,26 @@
 //! channel; the inference stage feeds a model one camera image, so these
 //! hold the RGB frame alone (the README says so beside the results).
 //!
+//! With a trajectory library, each example also says which of its
+//! trajectories, driven from the pose, would keep the robot's disc off
+//! every lethal cell: the traversable set the learned cost should rank
+//! above the rest (section II: q "should assign high values to a subset
+//! of the traversable trajectories and low values to this subset's
+//! complement"), which is how the trainer judges it.
+//!
 //! A folder:
 //!
 //! ```text
 //! hip-dataset.toml     what made it (scenario, seeds, sizes) and the counts
-//! examples.csv         example,segment,t_s,x_m,y_m,yaw_rad,fx1_m,fy1_m,...,fx10_m,fy10_m
+//! examples.csv         example,segment,t_s,x_m,y_m,yaw_rad,fx1_m,fy1_m,...,fx10_m,fy10_m[,library_free]
 //! images/NNNNNN.png    the front camera at the pose, resized to the model input as the inference stage resizes it
 //! ```
+//!
+//! `library_free` is one character per library trajectory, `1` free and
+//! `0` into something lethal.
 
 use crate::render::{Frame, Renderer};
+use crate::robot::Robot;
 use crate::sticky::StickyDrive;
 use crate::world::World;
 use anyhow::{Context, Result};
@@ -65,6 +76,33 @@ pub fn hip_examples(drive: &StickyDrive, horizon: usize) -> Vec<HipExample> {
     out
 }
 
+/// Which of `library`'s trajectories (robot frame), started from world
+/// `pose`, keep a disc of `radius_m` off every lethal cell at each point.
+pub fn library_free(
+    world: &World,
+    pose: [f64; 3],
+    library: &[Vec<[f64; 2]>],
+    radius_m: f64,
+) -> Vec<bool> {
+    let (s, c) = pose[2].sin_cos();
+    library
+        .iter()
+        .map(|t| {
+            t.iter().all(|&[x, y]| {
+                let (wx, wy) = (pose[0] + c * x - s * y, pose[1] + s * x + c * y);
+                Robot::footprint_free(world, wx, wy, radius_m)
+            })
+        })
+        .collect()
+}
+
+/// The library the examples are judged against, and the disc.
+#[derive(Debug, Clone)]
+pub struct LibraryCheck<'a> {
+    pub trajectories: &'a [Vec<[f64; 2]>],
+    pub radius_m: f64,
+}
+
 /// What made a dataset folder, written as `hip-dataset.toml`.
 #[derive(Debug, Clone, Serialize)]
 pub struct HipDatasetManifest {
@@ -84,6 +122,9 @@ pub struct HipDatasetManifest {
     pub camera_height: u32,
     pub image_width: u32,
     pub image_height: u32,
+    /// The library of `library_free` ("" when none) and its disc.
+    pub library: String,
+    pub library_radius_m: f64,
 }
 
 /// Renders every example's view with `camera` and writes the folder at
@@ -95,6 +136,7 @@ pub fn write_hip_dataset(
     camera: &Camera,
     examples: &[HipExample],
     manifest: &HipDatasetManifest,
+    library: Option<&LibraryCheck>,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<()> {
     let images = out.join("images");
@@ -109,6 +151,9 @@ pub fn write_hip_dataset(
     for k in 1..=manifest.horizon {
         write!(csv, ",fx{k}_m,fy{k}_m")?;
     }
+    if library.is_some() {
+        csv.push_str(",library_free");
+    }
     csv.push('\n');
     for (n, e) in examples.iter().enumerate() {
         renderer.render(world, e.pose, &mut frame);
@@ -120,6 +165,12 @@ pub fn write_hip_dataset(
         write!(csv, "{n},{},{:.3},{x:.4},{y:.4},{yaw:.5}", e.segment, e.t_s)?;
         for p in &e.future {
             write!(csv, ",{:.4},{:.4}", p[0], p[1])?;
+        }
+        if let Some(l) = library {
+            csv.push(',');
+            for free in library_free(world, e.pose, l.trajectories, l.radius_m) {
+                csv.push(if free { '1' } else { '0' });
+            }
         }
         csv.push('\n');
         if n % 500 == 0 || n + 1 == examples.len() {
@@ -186,6 +237,48 @@ mod tests {
     }
 
     #[test]
+    fn a_library_trajectory_is_free_unless_the_disc_meets_something_lethal() {
+        use crate::world::{Cover, Obstacle};
+        let mut world = World::new(30, 30, Cover::Grass);
+        world.set_obstacle(15, 10, Obstacle::Stone);
+        // Straight ahead 5 m and left 5 m (robot frame), from (10, 10):
+        // the stone's cell (15, 10) lies along +x.
+        let lib = vec![
+            (1..=5).map(|k| [k as f64, 0.0]).collect::<Vec<_>>(),
+            (1..=5).map(|k| [0.0, k as f64]).collect(),
+        ];
+        assert_eq!(
+            library_free(&world, [10.0, 10.0, 0.0], &lib, 0.4),
+            vec![false, true],
+            "facing +x, straight runs into the stone"
+        );
+        assert_eq!(
+            library_free(&world, [10.0, 10.0, std::f64::consts::FRAC_PI_2], &lib, 0.4),
+            vec![true, true],
+            "facing +y, straight is +y and left is -x: both clear"
+        );
+        assert_eq!(
+            library_free(
+                &world,
+                [10.0, 10.0, std::f64::consts::FRAC_PI_2],
+                &lib[1..],
+                0.4
+            ),
+            vec![true]
+        );
+        // Facing -y, left is +x: into the stone.
+        assert_eq!(
+            library_free(
+                &world,
+                [10.0, 10.0, -std::f64::consts::FRAC_PI_2],
+                &lib,
+                0.4
+            ),
+            vec![true, false]
+        );
+    }
+
+    #[test]
     fn the_folder_holds_an_image_and_a_row_per_example() {
         let world = World::new(40, 40, crate::world::Cover::Grass);
         let poses: Vec<_> = (0..6)
@@ -208,18 +301,32 @@ mod tests {
             camera_height: 36,
             image_width: 32,
             image_height: 18,
+            library: "test".into(),
+            library_radius_m: 0.4,
         };
         let cam = crate::run::front_camera(64, 36);
         let mut calls = Vec::new();
-        write_hip_dataset(&dir, &world, &cam, &examples, &manifest, |d, t| {
-            calls.push((d, t))
-        })
+        let lib = vec![vec![[1.0, 0.0]], vec![[0.0, 1.0]]];
+        let check = LibraryCheck {
+            trajectories: &lib,
+            radius_m: 0.4,
+        };
+        write_hip_dataset(
+            &dir,
+            &world,
+            &cam,
+            &examples,
+            &manifest,
+            Some(&check),
+            |d, t| calls.push((d, t)),
+        )
         .unwrap();
         let csv = std::fs::read_to_string(dir.join("examples.csv")).unwrap();
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(lines.len(), 1 + 3, "a header and three examples");
-        assert_eq!(lines[0].split(',').count(), 6 + 2 * 3);
+        assert_eq!(lines[0].split(',').count(), 6 + 2 * 3 + 1);
         assert!(lines[1].starts_with("0,0,0.000,10.0000,20.0000,0.00000,0.3000,0.0000"));
+        assert!(lines[1].ends_with(",11"), "open grass: {}", lines[1]);
         for n in 0..3 {
             let png = std::fs::read(dir.join(format!("images/{n:06}.png"))).unwrap();
             let (h, data) = farsight_imaging::decode_png(&png).unwrap();

@@ -88,6 +88,10 @@ enum Command {
         image_width: u32,
         #[arg(long, default_value_t = 72)]
         image_height: u32,
+        /// A HIP library: each example also says which of its
+        /// trajectories would be free of lethal cells from the pose.
+        #[arg(long)]
+        library: Option<PathBuf>,
         #[arg(long)]
         out: PathBuf,
     },
@@ -272,9 +276,16 @@ fn main() -> Result<()> {
             drive: args,
             image_width,
             image_height,
+            library,
             out,
         } => {
-            use farsight_sim::hip_dataset::{hip_examples, write_hip_dataset, HipDatasetManifest};
+            use farsight_sim::hip_dataset::{
+                hip_examples, write_hip_dataset, HipDatasetManifest, LibraryCheck,
+            };
+            let lib: Option<farsight_subgoal_selection::hip::LibraryFile> = library
+                .as_deref()
+                .map(farsight_stage::load_config_file)
+                .transpose()?;
             anyhow::ensure!(
                 (8..=1024).contains(&image_width) && (8..=1024).contains(&image_height),
                 "--image-width {image_width} / --image-height {image_height}: expected 8-1024 pixels each"
@@ -302,7 +313,15 @@ fn main() -> Result<()> {
                 camera_height: camera.model.height,
                 image_width,
                 image_height,
+                library: library
+                    .as_deref()
+                    .map_or(String::new(), |p| p.display().to_string()),
+                library_radius_m: cfg.limits.radius_m,
             };
+            let check = lib.as_ref().map(|l| LibraryCheck {
+                trajectories: &l.trajectories,
+                radius_m: cfg.limits.radius_m,
+            });
             let t0 = Instant::now();
             write_hip_dataset(
                 &out,
@@ -310,6 +329,7 @@ fn main() -> Result<()> {
                 &camera,
                 &examples,
                 &manifest,
+                check.as_ref(),
                 |done, total| {
                     eprint!(
                         "\rrendering views {done}/{total} ({:.0} s)   ",
