@@ -75,7 +75,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 /// The benchmark's rows: name and graph file (relative to the repository).
-pub const METHODS: [(&str, &str); 16] = [
+pub const METHODS: [(&str, &str); 18] = [
     ("lrn_learned", "graphs/sim/lrn.toml"),
     ("goal_heuristic", "graphs/sim/lrn-goal-heuristic.toml"),
     ("dstar_no_far_field", "graphs/sim/dstar-lite.toml"),
@@ -101,6 +101,8 @@ pub const METHODS: [(&str, &str); 16] = [
     ("povnav_jackal_pog", "graphs/sim/povnav-jackal-pog.toml"),
     ("vmpp_jackal", "graphs/sim/povnav-jackal-vmpp.toml"),
     ("hip_costmap", "graphs/sim/hip-costmap.toml"),
+    ("hip_learner", "graphs/sim/hip-learner.toml"),
+    ("hip_hybrid", "graphs/sim/hip-hybrid.toml"),
 ];
 
 /// The simulator a graph asks for: a camera for each `camera/<name>/...`

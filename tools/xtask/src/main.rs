@@ -15,10 +15,11 @@
 //!   (`sim-povnav/` with its goldens, after an intended change of the
 //!   outputs; `orfd/`, the real frames as recorded over zenoh).
 //!
-//! - `train [--smoke] [--ship]`: the self-supervised training chain
+//! - `train [--smoke] [--ship] [--models lrn-fitam,hip]`: the self-supervised training chain
 //!   (simulate -> record -> label -> train -> export -> evaluate) for LRN's
-//!   affordance model and FITAM's far-field ensemble; `--ship` copies the
-//!   models into `deploy/models/`.
+//!   affordance model and FITAM's far-field ensemble, and HIP's learned
+//!   density from its sticky random drives; `--ship` copies the models into
+//!   `deploy/models/`.
 //!
 //! Dependency-free on purpose, so it starts in seconds on a fresh clone.
 
@@ -61,7 +62,7 @@ fn main() -> ExitCode {
         Some("train") => train(&args[1..]),
         _ => {
             eprintln!(
-                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache; install the tests' pinned Foxglove clients (npm, Python venv)\n  test              fmt, cargo deny, clippy, build and every test\n  deny              cargo deny check bans licenses sources (offline)\n  bench NAME        transport | navigation | planning | nav | inference | recorder (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames\n  fixtures [sim|orfd|heldout]  regenerate tests/fixtures (replay fixtures and goldens; held-out frames)\n  train [--smoke] [--ship]  simulate, record, label, train, export, evaluate (LRN + FITAM models)"
+                "usage: cargo xtask <command>\n\n  setup             fetch ONNX Runtime {ORT_VERSION} (PyPI wheel) into the cache; install the tests' pinned Foxglove clients (npm, Python venv)\n  test              fmt, cargo deny, clippy, build and every test\n  deny              cargo deny check bans licenses sources (offline)\n  bench NAME        transport | navigation | planning | nav | inference | recorder (farsight bench NAME --help)\n  demo [ARGS]       the closed loop in the simulator (bug-trap); --orfd: real frames\n  fixtures [sim|orfd|heldout]  regenerate tests/fixtures (replay fixtures and goldens; held-out frames)\n  train [--smoke] [--ship] [--models lrn-fitam,hip]  simulate, record, label, train, export, evaluate (LRN, FITAM and HIP models)"
             );
             return ExitCode::from(2);
         }
@@ -461,7 +462,7 @@ fn python_test_clients() -> Result<()> {
         .args(["-m", "venv"])
         .arg(&venv)
         .stdout(std::io::stderr()))?;
-    run(Command::new(&py)
+    run(Command::new(py)
         .args([
             "-m",
             "pip",
@@ -798,6 +799,18 @@ struct TrainPlan {
     heldout: Vec<(&'static str, u64, u32)>,
     epochs: u32,
     members: u32,
+    hip: HipPlan,
+}
+
+/// HIP's learned density: seconds of sticky random driving on
+/// hip-in-distribution for training (seed 2) and validation (seed 3; the
+/// shipped library is seed 1's drive), the out-of-distribution world it is
+/// also judged on (hip-novel-wall, seed 4), and epochs.
+struct HipPlan {
+    train_s: u32,
+    val_s: u32,
+    novel_s: u32,
+    epochs: u32,
 }
 
 fn train_plan(smoke: bool) -> TrainPlan {
@@ -808,6 +821,12 @@ fn train_plan(smoke: bool) -> TrainPlan {
             heldout: vec![("random", 201, 45)],
             epochs: 4,
             members: 3,
+            hip: HipPlan {
+                train_s: 600,
+                val_s: 300,
+                novel_s: 300,
+                epochs: 1,
+            },
         };
     }
     let mut train: Vec<(&'static str, u64, u32)> =
@@ -828,6 +847,13 @@ fn train_plan(smoke: bool) -> TrainPlan {
         // trains 15 members to convergence on a GPU.
         epochs: 8,
         members: 5,
+        // About 41,000 examples: six epochs take some eight minutes here.
+        hip: HipPlan {
+            train_s: 24_000,
+            val_s: 6_000,
+            novel_s: 3_000,
+            epochs: 6,
+        },
     }
 }
 
@@ -854,31 +880,127 @@ fn train_python() -> Result<PathBuf> {
     Ok(py)
 }
 
+/// Which models `cargo xtask train` makes (`--models lrn-fitam,hip`;
+/// both by default). LRN and FITAM share their recordings and labels.
+#[derive(Clone, Copy)]
+struct TrainModels {
+    lrn_fitam: bool,
+    hip: bool,
+}
+
+/// What every part of the training chain shares.
+struct TrainCtx<'a> {
+    plan: &'a TrainPlan,
+    smoke: bool,
+    ship: bool,
+    work: PathBuf,
+    bin: PathBuf,
+    py: PathBuf,
+    trainer: PathBuf,
+    models: PathBuf,
+    step: &'a dyn Fn(u32, &str),
+}
+
 fn train(args: &[String]) -> Result<()> {
-    let smoke = args.iter().any(|a| a == "--smoke");
-    let ship = args.iter().any(|a| a == "--ship");
-    if let Some(bad) = args.iter().find(|a| *a != "--smoke" && *a != "--ship") {
-        return Err(format!(
-            "train: unknown argument {bad:?} (want --smoke, --ship)"
-        ));
+    let mut smoke = false;
+    let mut ship = false;
+    let mut which = TrainModels {
+        lrn_fitam: true,
+        hip: true,
+    };
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--smoke" => smoke = true,
+            "--ship" => ship = true,
+            "--models" => {
+                let list = it
+                    .next()
+                    .ok_or("train: --models needs a list (lrn-fitam,hip)")?;
+                which = TrainModels {
+                    lrn_fitam: false,
+                    hip: false,
+                };
+                for m in list.split(',') {
+                    match m {
+                        "lrn-fitam" => which.lrn_fitam = true,
+                        "hip" => which.hip = true,
+                        bad => {
+                            return Err(format!(
+                            "train: --models {list:?}: unknown model {bad:?} (want lrn-fitam, hip)"
+                        ))
+                        }
+                    }
+                }
+            }
+            bad => {
+                return Err(format!(
+                    "train: unknown argument {bad:?} (want --smoke, --ship, --models LIST)"
+                ))
+            }
+        }
     }
     let plan = train_plan(smoke);
     let t0 = std::time::Instant::now();
     let step = |n: u32, what: &str| {
         eprintln!(
-            "\n== [{n}/6] {what} ({:.0} s so far)",
+            "\n== [{n}/8] {what} ({:.0} s so far)",
             t0.elapsed().as_secs_f64()
         )
     };
     step(1, "build");
     run(cargo().args(["build", "--release", "--workspace"]))?;
-    let py = train_python()?;
     let work = root().join(if smoke {
         "target/train-smoke"
     } else {
         "target/train"
     });
-    let bin = root().join("target/release");
+    let cx = TrainCtx {
+        plan: &plan,
+        smoke,
+        ship,
+        models: work.join("models"),
+        work,
+        bin: root().join("target/release"),
+        py: train_python()?,
+        trainer: root().join("tools/train/farsight_train.py"),
+        step: &step,
+    };
+    if which.lrn_fitam {
+        train_lrn_fitam(&cx)?;
+    }
+    if which.hip {
+        train_hip(&cx)?;
+    }
+    if ship {
+        eprintln!(
+            "xtask: models shipped to {}",
+            root().join("deploy/models").display()
+        );
+    }
+    eprintln!(
+        "\nxtask: training chain done in {:.0} s; models in {}",
+        t0.elapsed().as_secs_f64(),
+        cx.models.display(),
+    );
+    Ok(())
+}
+
+/// Steps 2-6: LRN's and FITAM's recordings, labels, models and held-out
+/// report.
+fn train_lrn_fitam(cx: &TrainCtx) -> Result<()> {
+    let TrainCtx {
+        plan,
+        smoke,
+        work,
+        bin,
+        py,
+        trainer,
+        models,
+        step,
+        ..
+    } = cx;
+    let smoke = *smoke;
     step(
         2,
         "simulate and record (the expert drives; the simulator records)",
@@ -943,11 +1065,9 @@ fn train(args: &[String]) -> Result<()> {
             .arg(&out))?;
     }
     let data = |n: &str| work.join(format!("data/{n}"));
-    let models = work.join("models");
-    let trainer = root().join("tools/train/farsight_train.py");
     step(4, "train and export LRN");
-    run(Command::new(&py)
-        .arg(&trainer)
+    run(Command::new(py)
+        .arg(trainer)
         .arg("lrn")
         .arg("--train")
         .arg(data("train"))
@@ -957,8 +1077,8 @@ fn train(args: &[String]) -> Result<()> {
         .arg(models.join("sim-lrn"))
         .args(["--epochs", &plan.epochs.to_string(), "--seed", "1"]))?;
     step(5, "train and export FITAM");
-    run(Command::new(&py)
-        .arg(&trainer)
+    run(Command::new(py)
+        .arg(trainer)
         .arg("fitam")
         .arg("--train")
         .arg(data("train"))
@@ -970,8 +1090,8 @@ fn train(args: &[String]) -> Result<()> {
         .args(["--members", &plan.members.to_string()]))?;
     step(6, "evaluate on the held-out worlds");
     let report = work.join("report");
-    run(Command::new(&py)
-        .arg(&trainer)
+    run(Command::new(py)
+        .arg(trainer)
         .arg("evaluate")
         .arg("--data")
         .arg(data("heldout"))
@@ -1000,7 +1120,7 @@ fn train(args: &[String]) -> Result<()> {
         std::fs::write(models.join(m).join("TRAINED.md"), &provenance)
             .map_err(|e| format!("{m}: {e}"))?;
     }
-    if ship {
+    if cx.ship {
         for m in ["sim-lrn", "sim-fitam"] {
             let to = root().join("deploy/models").join(m);
             std::fs::create_dir_all(&to).map_err(|e| format!("{}: {e}", to.display()))?;
@@ -1016,16 +1136,70 @@ fn train(args: &[String]) -> Result<()> {
             std::fs::copy(report.join(png), to.join(png))
                 .map_err(|e| format!("shipping {m}/{png}: {e}"))?;
         }
-        eprintln!(
-            "xtask: models shipped to {}",
-            root().join("deploy/models").display()
-        );
     }
-    eprintln!(
-        "\nxtask: training chain done in {:.0} s; models in {}, report in {}",
-        t0.elapsed().as_secs_f64(),
-        models.display(),
-        report.display()
+    eprintln!("xtask: LRN and FITAM report in {}", report.display());
+    Ok(())
+}
+
+/// Steps 7-8: HIP's sticky random drives with their views, and its
+/// learned density.
+fn train_hip(cx: &TrainCtx) -> Result<()> {
+    (cx.step)(
+        7,
+        "HIP's data: sticky random drives, the camera's view at each pose",
     );
+    let library = root().join("deploy/models/sim-hip/hip-library.toml");
+    let hip = &cx.plan.hip;
+    let hip_sets = [
+        ("train", "hip-in-distribution", 2, hip.train_s),
+        ("val", "hip-in-distribution", 3, hip.val_s),
+        ("novel", "hip-novel-wall", 4, hip.novel_s),
+    ];
+    for (name, scenario, seed, secs) in hip_sets {
+        let out = cx.work.join(format!("hip-data/{name}"));
+        let _ = std::fs::remove_dir_all(&out);
+        run(Command::new(cx.bin.join("farsight-sim"))
+            .arg("hip-dataset")
+            .args(["--scenario", scenario])
+            .args(["--seed", &seed.to_string(), "--seconds", &secs.to_string()])
+            .arg("--library")
+            .arg(&library)
+            .arg("--out")
+            .arg(&out))?;
+    }
+    (cx.step)(8, "train and export HIP's learned density");
+    let hip_out = cx.models.join("sim-hip");
+    let hip_data = |n: &str| cx.work.join(format!("hip-data/{n}"));
+    run(Command::new(&cx.py)
+        .arg(&cx.trainer)
+        .arg("hip")
+        .arg("--train")
+        .arg(hip_data("train"))
+        .arg("--val")
+        .arg(hip_data("val"))
+        .arg("--report")
+        .arg(hip_data("novel"))
+        .arg("--library")
+        .arg(&library)
+        .arg("--out")
+        .arg(&hip_out)
+        .args(["--epochs", &hip.epochs.to_string(), "--seed", "1"]))?;
+    let hip_provenance = format!(
+        "Made by `cargo xtask train{}` (seeds fixed: training seed 1), for the library `hip-library.toml` beside it.\n\n- train: hip-in-distribution, sticky random drive seed 2, {} s\n- val: hip-in-distribution, drive seed 3, {} s\n- also judged on: hip-novel-wall, drive seed 4, {} s\n\n{}",
+        if cx.smoke { " --smoke" } else { "" },
+        hip.train_s,
+        hip.val_s,
+        hip.novel_s,
+        std::fs::read_to_string(hip_out.join("metrics.md")).unwrap_or_default()
+    );
+    std::fs::write(hip_out.join("TRAINED.md"), hip_provenance)
+        .map_err(|e| format!("sim-hip: {e}"))?;
+    if cx.ship {
+        let to = root().join("deploy/models/sim-hip");
+        for f in ["model.onnx", "model.toml", "TRAINED.md"] {
+            std::fs::copy(hip_out.join(f), to.join(f))
+                .map_err(|e| format!("shipping sim-hip/{f}: {e}"))?;
+        }
+    }
     Ok(())
 }
