@@ -1,11 +1,14 @@
 """farsight's trainer: LRN's affordance heatmap and FITAM's far-field
 ensembles on a small CPU image encoder, from `farsight dataset` folders,
-exported to ONNX with the model config the inference stage reads.
+and HIP's learned trajectory density from `farsight-sim hip-dataset`
+folders, exported to ONNX with the model config the inference stage (or,
+for HIP, the subgoal stage) reads.
 
     python farsight_train.py lrn      --train DIR --val DIR --out models/sim-lrn
     python farsight_train.py fitam    --train DIR --val DIR --out models/sim-fitam
     python farsight_train.py evaluate --data DIR --lrn models/sim-lrn --fitam models/sim-fitam --out report/
     python farsight_train.py hip      --train DIR --val DIR --library hip-library.toml --out models/sim-hip
+    python farsight_train.py hip-report --model models/sim-hip --library hip-library.toml --prior DIR --data DIR...
 
 The encoder: four 3x3 convolutions (3-16-32-32-32 channels, the first two
 with stride 2) on a 160x96 RGB frame, so 24x40 feature cells. LRN's head is
