@@ -208,6 +208,7 @@ fn every_numeric_key_of_every_config_is_refused_outside_its_range() {
         ("deploy/models/deeplabv3-voc.toml", sweep::<ModelConfig>),
         ("deploy/models/sim-fitam/model.toml", sweep::<ModelConfig>),
         ("deploy/models/sim-lrn/model.toml", sweep::<ModelConfig>),
+        ("deploy/models/sim-hip/model.toml", sweep::<ModelConfig>),
         (
             "deploy/models/twinlitenet-classes.toml",
             sweep::<ClassTableConfig>,

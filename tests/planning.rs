@@ -780,6 +780,9 @@ mod graph {
         let bus = ns.bus("hip-learner-test");
         let learner = HipRig::start(&ns, &bus, "[hip]\nphi = 0.0\n");
         learner.choose_with(&wall_ahead, [255, 0, 0], &|y| y.abs() < 0.1);
+        // Reports from before the first frame (no term yet) are not the
+        // staleness this waits for.
+        learner.health.latest().unwrap();
         // Frames stop: within the input deadline (1 s) the term goes stale,
         // and the Learner says so and plans nothing more.
         let end = Instant::now() + Duration::from_secs(15);

@@ -319,9 +319,10 @@ HIP_SIGMA = 0.01
 
 def load_hip(folder, limit=None):
     """A `farsight-sim hip-dataset` folder: uint8 images [N, 3, H, W] (as
-    the inference stage resizes the camera), futures [N, H, 2] (m, robot
-    frame) and, where the folder has them, which library trajectories are
-    free of lethal cells from each pose ([N, K] bool, else None)."""
+    the inference stage resizes the camera), futures [N, H, 2] and past
+    positions [N, P, 2] (m, robot frame, the past oldest first) and, where
+    the folder has them, which library trajectories are free of lethal
+    cells from each pose ([N, K] bool, else None)."""
     import tomllib
     from PIL import Image
 
@@ -330,23 +331,25 @@ def load_hip(folder, limit=None):
     rows = list(csv.reader(open(os.path.join(folder, "examples.csv"))))[1:]
     if limit:
         rows = rows[:limit]
-    n, H = len(rows), m["horizon"]
+    n, H, P = len(rows), m["horizon"], m["past"]
     h, w = m["image_height"], m["image_width"]
     images = np.zeros((n, 3, h, w), np.uint8)
     futures = np.zeros((n, H, 2), np.float32)
+    past = np.zeros((n, P, 2), np.float32)
     header = open(os.path.join(folder, "examples.csv")).readline().strip().split(",")
     free = None
     if header[-1] == "library_free" and rows:
-        free = np.zeros((n, len(rows[0][6 + 2 * H])), bool)
+        free = np.zeros((n, len(rows[0][-1])), bool)
     for i, r in enumerate(rows):
         images[i] = np.asarray(Image.open(os.path.join(folder, "images", f"{int(r[0]):06d}.png"))
                                .convert("RGB")).transpose(2, 0, 1)
         futures[i] = np.array(r[6:6 + 2 * H], np.float32).reshape(H, 2)
+        past[i] = np.array(r[6 + 2 * H:6 + 2 * H + 2 * P], np.float32).reshape(P, 2)
         if free is not None:
-            free[i] = np.frombuffer(r[6 + 2 * H].encode(), np.uint8) == ord("1")
+            free[i] = np.frombuffer(r[-1].encode(), np.uint8) == ord("1")
         if i % 2000 == 0 or i == n - 1:
             progress(f"loading {os.path.basename(folder.rstrip('/'))}", i + 1, n)
-    return dict(manifest=m, images=images, futures=futures, free=free)
+    return dict(manifest=m, images=images, futures=futures, past=past.reshape(n, 2 * P), free=free)
 
 
 def hip_steps(futures):
@@ -360,13 +363,14 @@ def hip_steps(futures):
     return prev, futures - before
 
 
-def hip_init(key, h, w, H, components):
-    k = jax.random.split(key, 5)
+def hip_init(key, h, w, H, P, components):
+    k = jax.random.split(key, 6)
     flat = CHANNELS[-1] * (h // 8) * (w // 8)
     dense = lambda k, i, o: (jax.random.normal(k, (i, o)) * np.sqrt(2.0 / i), jnp.zeros((o,)))  # noqa: E731
     return dict(
         enc=init_encoder(k[0]),
         feat=dense(k[1], flat, HIP_FEATURES),
+        past=(jax.random.normal(k[5], (2 * P, HIP_FEATURES)) * np.sqrt(2.0 / max(2 * P, 1)),),
         w1=dense(k[2], HIP_FEATURES + 3 * H, HIP_HIDDEN),
         # Per step and mixture component: a logit, a mean and a raw
         # deviation per axis; the means start spread round the origin.
@@ -377,13 +381,14 @@ def hip_init(key, h, w, H, components):
     )
 
 
-def hip_features(p, x):
-    """Images [N, 3, h, w] in 0..1 -> [N, F]: the encoder, 2x2 average
-    pooling (the layout of what is where stays), one dense layer."""
+def hip_features(p, x, past):
+    """Images [N, 3, h, w] in 0..1 and past positions [N, 2P] -> [N, F]:
+    the encoder, 2x2 average pooling (the layout of what is where stays),
+    and one dense layer over the image's cells and the past."""
     f = encode(p["enc"], x)
     n, c, fh, fw = f.shape
     f = f.reshape(n, c, fh // 2, 2, fw // 2, 2).mean((3, 5)).reshape(n, -1)
-    return jax.nn.relu(f @ p["feat"][0] + p["feat"][1])
+    return jax.nn.relu(f @ p["feat"][0] + past @ p["past"][0] + p["feat"][1])
 
 
 def hip_log_q(p, feat, futures, sigma_min=HIP_SIGMA):
@@ -427,27 +432,34 @@ def train_hip(a):
     if lib.shape[1] != H or abs(step_s - tr["manifest"]["step_s"]) > 1e-9:
         raise SystemExit(f"{a.library}: trajectories of {lib.shape[1]} points {step_s} s apart, "
                          f"the dataset's futures {H} points {tr['manifest']['step_s']} s apart")
+    for name, d in [("--train", tr), ("--val", va)]:
+        if d["free"] is not None and d["free"].shape[1] != len(lib):
+            raise SystemExit(f"{name}: library_free judges {d['free'].shape[1]} trajectories, "
+                             f"{a.library} holds {len(lib)}: made with another library")
     h, w = tr["images"].shape[2:]
+    if h % 8 or w % 8:
+        raise SystemExit(f"{a.train}: {w}x{h} images; HIP's encoder and pooling want sides divisible by 8")
     print(f"HIP: {len(tr['images'])} training examples, {len(va['images'])} validation, "
-          f"{h}x{w} images, H = {H}, library K = {len(lib)}")
+          f"{h}x{w} images, {tr['past'].shape[1] // 2} past and H = {H} future points, library K = {len(lib)}")
     noise = np.random.default_rng(a.seed)
 
-    def loss_fn(p, xb, fb):
-        return -hip_log_q(p, hip_features(p, xb), fb, a.sigma).mean()
+    def loss_fn(p, xb, pb, fb):
+        return -hip_log_q(p, hip_features(p, xb, pb), fb, a.sigma).mean()
 
-    params = hip_init(jax.random.PRNGKey(a.seed), h, w, H, a.components)
+    P = tr["past"].shape[1] // 2
+    params = hip_init(jax.random.PRNGKey(a.seed), h, w, H, P, a.components)
     vloss = jax.jit(loss_fn)
     val_idx = np.arange(min(len(va["images"]), 4000))
 
     def val_loss(p):
-        ls = [vloss(p, va["images"][i:i + 256] / np.float32(255), va["futures"][i:i + 256])
+        ls = [vloss(p, va["images"][i:i + 256] / np.float32(255), va["past"][i:i + 256], va["futures"][i:i + 256])
               for i in range(0, len(val_idx), 256)]
         return np.mean([float(v) for v in ls])
 
     def batches(epoch):
         for idx in minibatches(len(tr["images"]), a.batch, a.seed + epoch):
             f = tr["futures"][idx]
-            yield (tr["images"][idx] / np.float32(255),
+            yield (tr["images"][idx] / np.float32(255), tr["past"][idx],
                    f + noise.normal(0, a.sigma, f.shape).astype(np.float32))
 
     params, best = fit(loss_fn, params, batches, val_loss, a.epochs, a.patience, a.lr, "HIP")
@@ -467,6 +479,10 @@ def hip_report_cmd(a):
     lib, _ = read_library(a.library)
     prior = load_hip(a.prior, a.limit)["futures"]
     sets = [(os.path.basename(d.rstrip("/")), load_hip(d)) for d in a.data]
+    for name, d in sets:
+        if d["free"] is not None and d["free"].shape[1] != len(lib):
+            raise SystemExit(f"{name}: library_free judges {d['free'].shape[1]} trajectories, "
+                             f"{a.library} holds {len(lib)}: made with another library")
     print(hip_report(a.model, lib, prior, sets))
 
 
@@ -501,9 +517,9 @@ def hip_report(model_dir, lib, prior_futures, sets):
             "|---|---|---|---|---|"]
     for name, va in sets:
         # The exported model, as the subgoal stage runs it.
-        logq = run_onnx(model_dir, va["images"], scale=np.float32(1 / 255))
+        logq = run_onnx(model_dir, va["images"], scale=np.float32(1 / 255), past=va["past"])
         near = nearest_library(lib, va["futures"])
-        for how, sc in [("learned log q(tau | image)", logq),
+        for how, sc in [("learned log q(tau | o)", logq),
                         ("training frequency (no image)", np.broadcast_to(prior, logq.shape))]:
             r = (sc > sc[np.arange(len(sc)), near][:, None]).sum(1)
             free = va.get("free")
@@ -527,6 +543,7 @@ def export_hip(params, lib, manifest, a):
     from onnx import TensorProto, helper, numpy_helper
 
     K, H, _ = lib.shape
+    P = manifest["past"]
     h, w = manifest["image_height"], manifest["image_width"]
     F = HIP_FEATURES
     prev, d = hip_steps(jnp.asarray(lib))
@@ -538,6 +555,7 @@ def export_hip(params, lib, manifest, a):
     arr = lambda v, name: inits.append(numpy_helper.from_array(np.asarray(v, np.float32), name))  # noqa: E731
     i64 = lambda v, name: inits.append(numpy_helper.from_array(np.array(v, np.int64), name))  # noqa: E731
     arr(params["feat"][0], "feat.w")
+    arr(params["past"][0], "past.w")
     arr(params["feat"][1], "feat.b")
     arr(w1[:F], "w1.feat")
     arr(const, "w1.library")
@@ -556,7 +574,9 @@ def export_hip(params, lib, manifest, a):
         helper.make_node("AveragePool", [cur], ["pooled"], kernel_shape=[2, 2], strides=[2, 2]),
         helper.make_node("Flatten", ["pooled"], ["flat"], axis=1),
         helper.make_node("MatMul", ["flat", "feat.w"], ["f0"]),
-        helper.make_node("Add", ["f0", "feat.b"], ["f1"]),
+        helper.make_node("MatMul", ["past", "past.w"], ["fp"]),
+        helper.make_node("Add", ["f0", "fp"], ["f0p"]),
+        helper.make_node("Add", ["f0p", "feat.b"], ["f1"]),
         helper.make_node("Relu", ["f1"], ["feat"]),
         helper.make_node("MatMul", ["feat", "w1.feat"], ["h0"]),
         helper.make_node("Add", ["h0", "w1.library"], ["h1"]),
@@ -584,19 +604,27 @@ def export_hip(params, lib, manifest, a):
     ]
     graph = helper.make_graph(
         nodes, "farsight_hip",
-        [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, h, w])],
+        [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, h, w]),
+         helper.make_tensor_value_info("past", TensorProto.FLOAT, [1, 2 * P])],
         [helper.make_tensor_value_info("log_q", TensorProto.FLOAT, [1, K])], inits)
     path = os.path.join(a.out, "model.onnx")
     save_model(graph, path)
     libj = jnp.asarray(lib)
-    check_onnx(path, lambda x: np.asarray(hip_log_q(params, hip_features(params, x), libj[None], a.sigma)),
-               (1, 3, h, w))
-    write_model_config(a, f"""# HIP's learned density (farsight_train.py hip): log q(tau | image) of each of
+    past = np.random.default_rng(1).normal(0, 1, (1, 2 * P)).astype(np.float32)
+    check_onnx(path, lambda x: np.asarray(hip_log_q(params, hip_features(params, x, past), libj[None], a.sigma)),
+               (1, 3, h, w), {"past": past})
+    write_model_config(a, f"""# HIP's learned density (farsight_train.py hip): log q(tau | image, past) of each of
 # the K = {K} trajectories of the library it was exported with, H = {H} points
-# {manifest['step_s']} s apart; autoregressive over each step given the image
-# and the steps before (Deep Imitative Models' factorisation), each step a
-# mixture of {M} Gaussians, on a 4-layer CPU encoder. Use it with that library.
-""", w, h, f"""[[outputs]]
+# {manifest['step_s']} s apart, given the image and the robot's {P} past positions
+# (`past_input`); autoregressive over each step given those and the steps
+# before (Deep Imitative Models' factorisation), each step a mixture of {M}
+# Gaussians, on a 4-layer CPU encoder. Use it with that library.
+""", w, h, f"""[past_input]
+name = "past"
+points = {P}
+step_s = {manifest['step_s']}
+
+[[outputs]]
 name = "log_q"
 kind = "trajectory_log_likelihood"
 classes = {K}
@@ -742,13 +770,14 @@ ensemble_shape = [{S}, {R}, {M}, {C}]
     print(f"FITAM model: {path} ({os.path.getsize(path) / 1e3:.0f} kB)")
 
 
-def check_onnx(path, reference, shape):
-    """The exported graph must compute what the trained model computes."""
+def check_onnx(path, reference, shape, extra=None):
+    """The exported graph must compute what the trained model computes
+    (`extra`: inputs besides the image, fixed)."""
     import onnxruntime as ort
 
     x = np.random.default_rng(0).random(shape, dtype=np.float32)
     s = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
-    got = s.run(None, {"images": x})[0]
+    got = s.run(None, {"images": x, **(extra or {})})[0]
     want = reference(x)
     # Relative where values are large (HIP's log-likelihoods run to
     # hundreds): float32 sums differ in their last digits there.
@@ -786,9 +815,10 @@ def best_f1(score, label):
                 FPR=float(fp[i] / max(N, 1)), FNR=float(1 - rec[i])), prec, rec
 
 
-def run_onnx(folder, images, scale=None):
+def run_onnx(folder, images, scale=None, past=None):
     """The folder's model.onnx on each image; `scale` multiplies each one
-    first (uint8 images stay uint8 in memory)."""
+    first (uint8 images stay uint8 in memory); `past`, HIP's past
+    positions per image, goes to the input named "past"."""
     import onnxruntime as ort
 
     s = ort.InferenceSession(os.path.join(folder, "model.onnx"), providers=["CPUExecutionProvider"])
@@ -796,7 +826,8 @@ def run_onnx(folder, images, scale=None):
     out = []
     for i in range(len(images)):
         x = images[i:i + 1] if scale is None else images[i:i + 1].astype(np.float32) * scale
-        out.append(s.run(None, {name: x})[0][0])
+        feed = {name: x} if past is None else {name: x, "past": past[i:i + 1]}
+        out.append(s.run(None, feed)[0][0])
         if i % 50 == 0 or i == len(images) - 1:
             progress(f"running {os.path.basename(folder.rstrip('/'))}", i + 1, len(images))
     return np.stack(out)

@@ -162,6 +162,15 @@ impl StageKind for InferenceStage {
         let (backend, model_table, plan, size_hint) = match config.backend.as_str() {
             "onnx" => {
                 let model_config = ModelConfig::load(&base.join(&config.model_config))?;
+                if let Some(past) = &model_config.past_input {
+                    anyhow::bail!(
+                        "{}: past_input {:?}: this stage has no pose history to feed it \
+                         (a model of the robot's past positions runs in subgoal-selection, \
+                         as HIP's hip_model)",
+                        config.model_config,
+                        past.name
+                    );
+                }
                 // A model whose shapes do not match its config is refused
                 // here, naming the tensor and both shapes.
                 let model = OnnxModel::load(&model_config).context("loading the model")?;

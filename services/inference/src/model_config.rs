@@ -110,6 +110,20 @@ fn half() -> f32 {
     0.5
 }
 
+/// The robot's past positions as a model input (HIP's learner, section V:
+/// "10 past timesteps"): `points` positions `step_s` apart before the
+/// frame's capture time, oldest first, in the robot's frame at capture (x
+/// ahead, y left, metres), flattened (x, y) into a `[1, 2 * points]`
+/// tensor. The subgoal stage fills it from its pose history; the inference
+/// stage, which has none, refuses a model that wants it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PastInputSpec {
+    pub name: String,
+    pub points: usize,
+    pub step_s: f64,
+}
+
 /// What an output tensor means.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -177,6 +191,9 @@ pub struct ModelConfig {
     #[serde(default)]
     pub class_table: Option<PathBuf>,
     pub input: InputSpec,
+    /// A second input: the robot's past positions (HIP's learned density).
+    #[serde(default)]
+    pub past_input: Option<PastInputSpec>,
     pub outputs: Vec<OutputSpec>,
     /// Directory of the config file; relative paths resolve against it.
     #[serde(skip)]
@@ -227,6 +244,14 @@ impl Validate for ModelConfig {
         .key("input.scale", i.scale, Range::finite())
         .each("input.mean", &i.mean, Range::finite())
         .each("input.std", &i.std, Range::above_to(0.0, 1e6));
+        if let Some(p) = &self.past_input {
+            r.key("past_input.points", p.points, Range::between(1.0, 100.0))
+                .key(
+                    "past_input.step_s",
+                    p.step_s,
+                    Range::above_to(0.0, 10.0).unit("s"),
+                );
+        }
         for (n, o) in self.outputs.iter().enumerate() {
             r.key(
                 &format!("outputs[{n}].classes"),

@@ -60,6 +60,8 @@ pub enum InferError {
     Preprocess(#[from] PreprocessError),
     #[error("onnx runtime: {0}")]
     Run(String),
+    #[error("input '{0}' wants the robot's past positions and none were given for this frame")]
+    NoPast(String),
 }
 
 static RUNTIME: OnceLock<Result<ort::environment::Environment, String>> = OnceLock::new();
@@ -117,6 +119,9 @@ pub struct OnnxModel {
     /// The input and every configured output have a dynamic leading (batch)
     /// dimension: several frames can go through one `session.run`.
     batches: bool,
+    /// The past positions for the next frame (`past_input`), taken by the
+    /// run that uses them so no frame runs with another frame's.
+    past: Option<Vec<f32>>,
 }
 
 fn float_tensor_shape<'a>(
@@ -136,6 +141,25 @@ fn float_tensor_shape<'a>(
             ty: format!("{other:?}"),
         }),
     }
+}
+
+/// The float32 shape of the model's input or output `name` (`what`), from
+/// the model's `(name, type)` list, or an error naming what it has.
+fn named_tensor_shape<'a>(
+    path: &str,
+    what: &'static str,
+    name: &str,
+    mut tensors: impl Iterator<Item = (&'a str, &'a ValueType)> + Clone,
+) -> Result<&'a [i64], LoadError> {
+    let Some((found, ty)) = tensors.clone().find(|(n, _)| *n == name) else {
+        return Err(LoadError::NoSuchTensor {
+            path: path.to_string(),
+            what,
+            name: name.to_string(),
+            available: tensors.by_ref().map(|(n, _)| n.to_string()).collect(),
+        });
+    };
+    float_tensor_shape(what, found, ty)
 }
 
 /// The rank of an output of `kind` with its leading batch dimension.
@@ -252,21 +276,9 @@ impl OnnxModel {
             .commit_from_file(&path)
             .map_err(|e| session_err(e.to_string()))?;
 
-        let input = session
-            .inputs()
-            .iter()
-            .find(|i| i.name() == config.input.name)
-            .ok_or_else(|| LoadError::NoSuchTensor {
-                path: shown.clone(),
-                what: "input",
-                name: config.input.name.clone(),
-                available: session
-                    .inputs()
-                    .iter()
-                    .map(|i| i.name().to_string())
-                    .collect(),
-            })?;
-        let model_shape = float_tensor_shape("input", input.name(), input.dtype())?;
+        let inputs = || session.inputs().iter().map(|i| (i.name(), i.dtype()));
+        let outputs = || session.outputs().iter().map(|o| (o.name(), o.dtype()));
+        let model_shape = named_tensor_shape(&shown, "input", &config.input.name, inputs())?;
         let want = config.input_shape();
         if model_shape.len() != 4 || model_shape.iter().zip(want).any(|(&m, w)| !dim_ok(m, w)) {
             return Err(LoadError::ShapeMismatch {
@@ -280,23 +292,26 @@ impl OnnxModel {
                 ),
             });
         }
+        if let Some(past) = &config.past_input {
+            let shape = named_tensor_shape(&shown, "input", &past.name, inputs())?;
+            let want = 2 * past.points as i64;
+            let ok = match shape {
+                [b, n] => dim_ok(*b, 1) && dim_ok(*n, want),
+                _ => false,
+            };
+            if !ok {
+                return Err(LoadError::ShapeMismatch {
+                    what: "input",
+                    name: past.name.clone(),
+                    model: shape.to_vec(),
+                    config: format!("[1, {want}]"),
+                    hint: format!("past_input.points = {} (x, y each)", past.points),
+                });
+            }
+        }
         let mut output_shapes = Vec::with_capacity(config.outputs.len());
         for spec in &config.outputs {
-            let out = session
-                .outputs()
-                .iter()
-                .find(|o| o.name() == spec.name)
-                .ok_or_else(|| LoadError::NoSuchTensor {
-                    path: shown.clone(),
-                    what: "output",
-                    name: spec.name.clone(),
-                    available: session
-                        .outputs()
-                        .iter()
-                        .map(|o| o.name().to_string())
-                        .collect(),
-                })?;
-            let shape = float_tensor_shape("output", out.name(), out.dtype())?;
+            let shape = named_tensor_shape(&shown, "output", &spec.name, outputs())?;
             check_output(spec, shape)?;
             output_shapes.push(shape.to_vec());
         }
@@ -306,6 +321,7 @@ impl OnnxModel {
         // An output has a batch dimension only at its kind's full rank (a
         // far-field ensemble may come without one).
         let batches = model_shape[0] < 0
+            && config.past_input.is_none()
             && config
                 .outputs
                 .iter()
@@ -318,7 +334,35 @@ impl OnnxModel {
             input: vec![0.0; len],
             output_shapes,
             batches,
+            past: None,
         })
+    }
+
+    /// The robot's past positions for the next frame run, as `past_input`
+    /// describes them (`2 * points` values, x and y, oldest first).
+    pub fn set_past(&mut self, values: &[f32]) -> Result<(), InferError> {
+        let Some(spec) = &self.config.past_input else {
+            return Err(InferError::Run(
+                "this model has no past_input to give positions to".into(),
+            ));
+        };
+        if values.len() != 2 * spec.points {
+            return Err(InferError::Run(format!(
+                "{} past values for input '{}', which takes {} ({} points)",
+                values.len(),
+                spec.name,
+                2 * spec.points,
+                spec.points
+            )));
+        }
+        if let Some(bad) = values.iter().find(|v| !v.is_finite()) {
+            return Err(InferError::Run(format!(
+                "past position {bad} for input '{}'",
+                spec.name
+            )));
+        }
+        self.past = Some(values.to_vec());
+        Ok(())
     }
 
     pub fn config(&self) -> &ModelConfig {
@@ -398,6 +442,18 @@ impl OnnxModel {
         }
         let first = results.len();
         let mut batch: Vec<usize> = Vec::with_capacity(frames.len());
+        // One frame per run where there is a past input (it turns batching
+        // off), and never with an earlier frame's positions: taken here,
+        // whatever becomes of the frame.
+        let past = self.past.take();
+        if let Some(spec) = &self.config.past_input {
+            if past.is_none() {
+                for _ in frames {
+                    results.push(Some(Err(InferError::NoPast(spec.name.clone()))));
+                }
+                return Timings::default();
+            }
+        }
         for (i, (header, frame)) in frames.iter().enumerate() {
             let slot = &mut self.input[batch.len() * per_frame..(batch.len() + 1) * per_frame];
             match pre.run(header, frame, slot) {
@@ -411,7 +467,7 @@ impl OnnxModel {
         let t1 = Instant::now();
         let mut t2 = t1;
         if !batch.is_empty() {
-            if let Err(e) = self.run_session(&batch, post, results, &mut t2) {
+            if let Err(e) = self.run_session(&batch, past.as_deref(), post, results, &mut t2) {
                 for &i in &batch {
                     results[i] = Some(Err(InferError::Run(e.clone())));
                 }
@@ -429,6 +485,7 @@ impl OnnxModel {
     fn run_session<R>(
         &mut self,
         batch: &[usize],
+        past: Option<&[f32]>,
         post: &mut impl FnMut(usize, &[(&OutputSpec, Vec<usize>, &[f32])]) -> R,
         results: &mut [Option<Result<R, InferError>>],
         ran: &mut Instant,
@@ -439,10 +496,20 @@ impl OnnxModel {
         let len = shape.iter().product::<usize>();
         let tensor =
             TensorRef::from_array_view((shape, &self.input[..len])).map_err(|e| e.to_string())?;
-        let outputs = self
-            .session
-            .run(ort::inputs![self.config.input.name.as_str() => tensor])
-            .map_err(|e| e.to_string())?;
+        let outputs = match (&self.config.past_input, past) {
+            (Some(spec), Some(values)) => {
+                let p = TensorRef::from_array_view(([1usize, values.len()], values))
+                    .map_err(|e| e.to_string())?;
+                self.session.run(ort::inputs![
+                    self.config.input.name.as_str() => tensor,
+                    spec.name.as_str() => p
+                ])
+            }
+            _ => self
+                .session
+                .run(ort::inputs![self.config.input.name.as_str() => tensor]),
+        }
+        .map_err(|e| e.to_string())?;
         *ran = Instant::now();
         let mut whole = Vec::with_capacity(self.config.outputs.len());
         for spec in &self.config.outputs {

@@ -237,6 +237,32 @@ pub fn choose(
         .min_by(|a, b| a.total.total_cmp(&b.total))
 }
 
+/// HIP's past-position input (section V: the learner's "10 past
+/// timesteps"): `points` positions `step_s` apart before capture time
+/// `t_ns`, oldest first, in the robot's frame at `t_ns` (x ahead, y left),
+/// flattened (x, y). `pose_at(t)` gives the world pose `[x_m, y_m,
+/// yaw_rad]` the robot had at `t` (the subgoal stage: the newest kept
+/// at or before it, else the oldest, so a short history repeats its first
+/// pose, as the training data repeats a respawn's). `None` without one.
+pub fn past_positions(
+    pose_at: impl Fn(u64) -> Option<[f64; 3]>,
+    t_ns: u64,
+    points: usize,
+    step_s: f64,
+) -> Option<Vec<f32>> {
+    let [x0, y0, yaw0] = pose_at(t_ns)?;
+    let (s, c) = yaw0.sin_cos();
+    let mut out = Vec::with_capacity(2 * points);
+    for k in (1..=points).rev() {
+        let back_ns = (k as f64 * step_s * 1e9).round() as u64;
+        let [x, y, _] = pose_at(t_ns.saturating_sub(back_ns))?;
+        let (dx, dy) = (x - x0, y - y0);
+        out.push((c * dx + s * dy) as f32);
+        out.push((-s * dx + c * dy) as f32);
+    }
+    Some(out)
+}
+
 /// From a recorded pose sequence `(t_s, x_m, y_m, yaw_rad)` (time order), the
 /// future of every `step_s`-spaced sample: the next `horizon` positions
 /// `step_s` apart, in that sample's robot frame. Positions are taken at the
@@ -392,6 +418,25 @@ impl Validate for LibraryFile {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn past_positions_are_the_poses_before_in_the_robot_frame_oldest_first() {
+        // Driving north (yaw 90 degrees) at 1 m/s since t = 10 s, having
+        // stood at (0, 0) before: at t = 11 s the robot is at (0, 1).
+        let pose_at = |t: u64| {
+            let t_s = t as f64 / 1e9;
+            Some([0.0, (t_s - 10.0).max(0.0), std::f64::consts::FRAC_PI_2])
+        };
+        let past = past_positions(pose_at, 11_000_000_000, 3, 0.5).unwrap();
+        // 1.5 s and 1 s before: at the stand, 1 m behind; 0.5 s before:
+        // 0.5 m behind. Behind is -x in the robot's frame.
+        let want = [-1.0, 0.0, -1.0, 0.0, -0.5, 0.0];
+        for (g, w) in past.iter().zip(want) {
+            assert!((g - w).abs() < 1e-6, "{past:?}");
+        }
+        assert_eq!(past.len(), 6);
+        assert_eq!(past_positions(|_| None, 5, 3, 0.2), None);
+    }
 
     #[test]
     fn the_disc_touches_a_lethal_cell_by_its_square_not_its_centre() {

@@ -760,6 +760,9 @@ impl MapPlan {
     fn step(&mut self, cx: &mut Context, step: &mut Step<'_>) {
         let now = step.wall_ns;
         let mut fresh_costmap = false;
+        // This step's pose first: HIP's past input is read at the frame's
+        // capture time, which may be the pose's.
+        cx.receive(step);
         if let (
             MapPlanner::Hip {
                 model: Some(model),
@@ -772,10 +775,28 @@ impl MapPlan {
             // The learned term: -log q(tau | o) of each trajectory for the newest frame.
             if let Some(frame) = step.inbox.take::<Image>(port) {
                 cx.inputs.consumed(image_in, frame.header.stamp);
-                let mut timings = Default::default();
-                let out = model.run(&frame.header, &frame.data, &mut timings, |outputs| {
-                    farsight_inference::Perception::from_outputs(outputs, None)
+                // A model of the robot's past positions gets them at the
+                // frame's capture time; without a pose yet the frame is
+                // not run and no older term is kept.
+                let past = model.config().past_input.clone().map(|spec| {
+                    let pose_at = |t| {
+                        cx.pose_at(t)
+                            .map(|p| [p.position_m[0], p.position_m[1], p.yaw_rad])
+                    };
+                    let t_ns = frame.header.stamp.capture_time_ns;
+                    crate::hip::past_positions(pose_at, t_ns, spec.points, spec.step_s)
+                        .ok_or_else(|| "no pose yet for the past positions".to_string())
+                        .and_then(|past| model.set_past(&past).map_err(|e| e.to_string()))
                 });
+                let out = match past {
+                    Some(Err(e)) => Err(farsight_inference::onnx::InferError::Run(e)),
+                    _ => {
+                        let mut timings = Default::default();
+                        model.run(&frame.header, &frame.data, &mut timings, |outputs| {
+                            farsight_inference::Perception::from_outputs(outputs, None)
+                        })
+                    }
+                };
                 match out {
                     Ok(Ok(p)) => {
                         *learned = p
@@ -795,7 +816,6 @@ impl MapPlan {
                 }
             }
         }
-        cx.receive(step);
         if let Some(c) = step.inbox.take::<Costmap>(cx.port.primary) {
             self.pending = Some(c);
         }

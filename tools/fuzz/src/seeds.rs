@@ -590,6 +590,7 @@ pub fn all() -> Vec<(&'static str, Vec<Seed>)> {
                 shipped("deploy/models/deeplabv3-voc.toml"),
                 shipped("deploy/models/sim-fitam/model.toml"),
                 shipped("deploy/models/sim-lrn/model.toml"),
+                shipped("deploy/models/sim-hip/model.toml"),
             ],
         ),
         (

@@ -5,9 +5,12 @@
 //! next, in its own frame (x ahead, y left: the library's frame,
 //! [`farsight_subgoal_selection::hip::future_trajectories`]).
 //!
-//! The paper's examples also hold the 10 past positions and a depth
-//! channel; the inference stage feeds a model one camera image, so these
-//! hold the RGB frame alone (the README says so beside the results).
+//! Each example also holds the 10 positions before it, 0.2 s apart, in
+//! the same frame (the paper's "10 past timesteps"; the subgoal stage
+//! feeds a model them from its pose history). Before a sequence's first
+//! pose the robot stood there, just respawned: the past repeats it, as the
+//! stage's history repeats its oldest pose. The paper's depth channel is
+//! not here: the stage feeds a model one RGB image.
 //!
 //! With a trajectory library, each example also says which of its
 //! trajectories, driven from the pose, would keep the robot's disc off
@@ -20,12 +23,13 @@
 //!
 //! ```text
 //! hip-dataset.toml     what made it (scenario, seeds, sizes) and the counts
-//! examples.csv         example,segment,t_s,x_m,y_m,yaw_rad,fx1_m,fy1_m,...,fx10_m,fy10_m[,library_free]
+//! examples.csv         example,segment,t_s,x_m,y_m,yaw_rad,fx1_m,fy1_m,...,fx10_m,fy10_m,px1_m,py1_m,...,px10_m,py10_m[,library_free]
 //! images/NNNNNN.png    the front camera at the pose, resized to the model input as the inference stage resizes it
 //! ```
 //!
-//! `library_free` is one character per library trajectory, `1` free and
-//! `0` into something lethal.
+//! The past runs oldest first (`px1` is 2 s before). `library_free` is one
+//! character per library trajectory, `1` free and `0` into something
+//! lethal.
 
 use crate::render::{Frame, Renderer};
 use crate::robot::Robot;
@@ -47,29 +51,34 @@ pub struct HipExample {
     pub pose: [f64; 3],
     /// The next `horizon` positions, robot frame (x ahead, y left), metres.
     pub future: Vec<[f64; 2]>,
+    /// The `past` positions before, oldest first, same frame.
+    pub past: Vec<[f64; 2]>,
 }
 
 /// Every pose of every collision-free sequence that has `horizon` recorded
 /// poses after it (the drive records at a fixed rate, so the k-th pose
-/// after is `k` record steps later), as the library's futures are made.
-pub fn hip_examples(drive: &StickyDrive, horizon: usize) -> Vec<HipExample> {
+/// after is `k` record steps later), as the library's futures are made,
+/// with the `past` poses before it (the sequence's first repeated before
+/// its start).
+pub fn hip_examples(drive: &StickyDrive, horizon: usize, past: usize) -> Vec<HipExample> {
     let mut out = Vec::new();
     for (segment, poses) in drive.segments.iter().enumerate() {
         for i in 0..poses.len().saturating_sub(horizon) {
             let (t_s, x0, y0, yaw0) = poses[i];
             let (s, c) = yaw0.sin_cos();
-            let future = poses[i + 1..=i + horizon]
-                .iter()
-                .map(|&(_, x, y, _)| {
-                    let (dx, dy) = (x - x0, y - y0);
-                    [c * dx + s * dy, -s * dx + c * dy]
-                })
-                .collect();
+            let frame = |&(_, x, y, _): &(f64, f64, f64, f64)| {
+                let (dx, dy) = (x - x0, y - y0);
+                [c * dx + s * dy, -s * dx + c * dy]
+            };
             out.push(HipExample {
                 segment,
                 t_s,
                 pose: [x0, y0, yaw0],
-                future,
+                future: poses[i + 1..=i + horizon].iter().map(frame).collect(),
+                past: (1..=past)
+                    .rev()
+                    .map(|k| frame(&poses[i.saturating_sub(k)]))
+                    .collect(),
             });
         }
     }
@@ -115,6 +124,8 @@ pub struct HipDatasetManifest {
     pub sequences: usize,
     pub examples: usize,
     pub horizon: usize,
+    /// Past positions per example.
+    pub past: usize,
     pub step_s: f64,
     /// The camera rendered (the simulator's front camera) and the model
     /// input it was resized to.
@@ -151,6 +162,9 @@ pub fn write_hip_dataset(
     for k in 1..=manifest.horizon {
         write!(csv, ",fx{k}_m,fy{k}_m")?;
     }
+    for k in 1..=manifest.past {
+        write!(csv, ",px{k}_m,py{k}_m")?;
+    }
     if library.is_some() {
         csv.push_str(",library_free");
     }
@@ -163,7 +177,7 @@ pub fn write_hip_dataset(
         farsight_dataset::write_png(&path, iw as usize, ih as usize, 3, &small)?;
         let [x, y, yaw] = e.pose;
         write!(csv, "{n},{},{:.3},{x:.4},{y:.4},{yaw:.5}", e.segment, e.t_s)?;
-        for p in &e.future {
+        for p in e.future.iter().chain(&e.past) {
             write!(csv, ",{:.4},{:.4}", p[0], p[1])?;
         }
         if let Some(l) = library {
@@ -204,8 +218,19 @@ mod tests {
         let poses: Vec<_> = (0..5)
             .map(|k| (0.2 * k as f64, 10.0, 5.0 + k as f64, yaw))
             .collect();
-        let ex = hip_examples(&drive(vec![poses]), 3);
+        let ex = hip_examples(&drive(vec![poses]), 3, 2);
         assert_eq!(ex.len(), 2, "poses 0 and 1 have three after them");
+        // Pose 1's past: pose 0 one metre behind, and before it pose 0
+        // again (the robot stood at its spawn).
+        assert_eq!(ex[1].past.len(), 2);
+        for p in &ex[1].past {
+            assert!((p[0] + 1.0).abs() < 1e-12 && p[1].abs() < 1e-12, "{p:?}");
+        }
+        assert!(
+            ex[0].past.iter().all(|p| p[0].abs() < 1e-12),
+            "{:?}",
+            ex[0].past
+        );
         for (i, e) in ex.iter().enumerate() {
             assert_eq!(e.pose, [10.0, 5.0 + i as f64, yaw]);
             for (k, p) in e.future.iter().enumerate() {
@@ -215,7 +240,7 @@ mod tests {
         }
         // A point to the robot's left is +y: facing +x, a pose at world +y.
         let left = vec![(0.0, 0.0, 0.0, 0.0), (0.2, 0.0, 1.0, 0.0)];
-        let ex = hip_examples(&drive(vec![left]), 1);
+        let ex = hip_examples(&drive(vec![left]), 1, 0);
         assert_eq!(ex[0].future, vec![[0.0, 1.0]]);
     }
 
@@ -229,11 +254,16 @@ mod tests {
         let b: Vec<_> = (0..2)
             .map(|k| (5.0 + 0.2 * k as f64, 50.0, 0.0, 0.0))
             .collect();
-        let ex = hip_examples(&drive(vec![a, b]), 2);
+        let ex = hip_examples(&drive(vec![a, b]), 2, 3);
         assert_eq!(ex.len(), 2);
         assert!(ex.iter().all(|e| e.segment == 0));
         assert_eq!(ex[1].future, vec![[1.0, 0.0], [2.0, 0.0]]);
-        assert!(hip_examples(&drive(vec![]), 10).is_empty());
+        assert_eq!(
+            ex[1].past,
+            vec![[-1.0, 0.0], [-1.0, 0.0], [-1.0, 0.0]],
+            "pose 0 three times"
+        );
+        assert!(hip_examples(&drive(vec![]), 10, 10).is_empty());
     }
 
     #[test]
@@ -284,7 +314,7 @@ mod tests {
         let poses: Vec<_> = (0..6)
             .map(|k| (0.2 * k as f64, 10.0 + 0.3 * k as f64, 20.0, 0.0))
             .collect();
-        let examples = hip_examples(&drive(vec![poses]), 3);
+        let examples = hip_examples(&drive(vec![poses]), 3, 2);
         let dir = std::env::temp_dir().join(format!("hip-dataset-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let manifest = HipDatasetManifest {
@@ -296,6 +326,7 @@ mod tests {
             sequences: 1,
             examples: examples.len(),
             horizon: 3,
+            past: 2,
             step_s: 0.2,
             camera_width: 64,
             camera_height: 36,
@@ -324,7 +355,12 @@ mod tests {
         let csv = std::fs::read_to_string(dir.join("examples.csv")).unwrap();
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(lines.len(), 1 + 3, "a header and three examples");
-        assert_eq!(lines[0].split(',').count(), 6 + 2 * 3 + 1);
+        assert_eq!(lines[0].split(',').count(), 6 + 2 * 3 + 2 * 2 + 1);
+        assert!(
+            lines[0].contains("fy3_m,px1_m,py1_m,px2_m,py2_m,library_free"),
+            "{}",
+            lines[0]
+        );
         assert!(lines[1].starts_with("0,0,0.000,10.0000,20.0000,0.00000,0.3000,0.0000"));
         assert!(lines[1].ends_with(",11"), "open grass: {}", lines[1]);
         for n in 0..3 {

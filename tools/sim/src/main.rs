@@ -88,6 +88,10 @@ enum Command {
         image_width: u32,
         #[arg(long, default_value_t = 72)]
         image_height: u32,
+        /// Past positions per example, one record step (0.2 s) apart
+        /// (the paper: 10).
+        #[arg(long, default_value_t = 10)]
+        past: usize,
         /// A HIP library: each example also says which of its
         /// trajectories would be free of lethal cells from the pose.
         #[arg(long)]
@@ -276,9 +280,11 @@ fn main() -> Result<()> {
             drive: args,
             image_width,
             image_height,
+            past,
             library,
             out,
         } => {
+            anyhow::ensure!(past <= 100, "--past {past}: expected at most 100 points");
             use farsight_sim::hip_dataset::{
                 hip_examples, write_hip_dataset, HipDatasetManifest, LibraryCheck,
             };
@@ -287,13 +293,16 @@ fn main() -> Result<()> {
                 .map(farsight_stage::load_config_file)
                 .transpose()?;
             anyhow::ensure!(
-                (8..=1024).contains(&image_width) && (8..=1024).contains(&image_height),
-                "--image-width {image_width} / --image-height {image_height}: expected 8-1024 pixels each"
+                (8..=1024).contains(&image_width)
+                    && (8..=1024).contains(&image_height)
+                    && image_width % 8 == 0
+                    && image_height % 8 == 0,
+                "--image-width {image_width} / --image-height {image_height}: expected 8-1024 pixels each, multiples of 8 (the trainer's encoder halves them three times)"
             );
             let (s, cfg, drive) = sticky_drive(&args)?;
             let (name, seconds, seed, horizon) =
                 (args.scenario, args.seconds, args.seed, args.horizon);
-            let examples = hip_examples(&drive, horizon);
+            let examples = hip_examples(&drive, horizon, past);
             anyhow::ensure!(
                 !examples.is_empty(),
                 "no collision-free sequence had {horizon} poses after a pose: drive longer"
@@ -308,6 +317,7 @@ fn main() -> Result<()> {
                 sequences: drive.segments.len(),
                 examples: examples.len(),
                 horizon,
+                past,
                 step_s: cfg.record_every_s,
                 camera_width: camera.model.width,
                 camera_height: camera.model.height,
