@@ -232,6 +232,7 @@ impl StageKind for SubgoalStage {
                     planner: MapPlanner::load(&config, &env.config_dir)?,
                     planned,
                     image,
+                    image_seq: None,
                     pending: None,
                     dirty: true,
                     period_ns: (1e9 / config.replan_rate_hz) as u64,
@@ -742,6 +743,8 @@ struct MapPlan {
     planned: usize,
     /// HIP with a model: the camera image's port and its (optional) input.
     image: Option<(usize, InputId)>,
+    /// The frame of the newest camera image the model has run on.
+    image_seq: Option<u64>,
     /// A costmap that came before there was a pose and a goal: it waits for
     /// them, the newest replacing it, as it used to wait in its subscriber.
     pending: Option<Costmap>,
@@ -775,6 +778,7 @@ impl MapPlan {
             // The learned term: -log q(tau | o) of each trajectory for the newest frame.
             if let Some(frame) = step.inbox.take::<Image>(port) {
                 cx.inputs.consumed(image_in, frame.header.stamp);
+                self.image_seq = Some(frame.header.stamp.frame_seq);
                 // A model of the robot's past positions gets them at the
                 // frame's capture time; without a pose yet the frame is
                 // not run and no older term is kept.
@@ -839,6 +843,16 @@ impl MapPlan {
         };
         if let Some(k) = join_seq {
             if !cx.joined(&mut self.pending, k, "costmap", step.health) {
+                return;
+            }
+        }
+        // HIP's learned term on the stamps' clock: a costmap waits for the
+        // camera image of its frame. Stages as processes get the two in
+        // either order, in one process together; without the wait the
+        // first frame was planned with no term in one and with it in the
+        // other, and the tracks parted.
+        if let (Some(_), ClockSource::Stamps, Some(c)) = (self.image, config.clock, &self.pending) {
+            if self.image_seq.is_none_or(|s| s < c.header.stamp.frame_seq) {
                 return;
             }
         }
