@@ -18,7 +18,8 @@
 //! hip_library = ""               # hip: the trajectory library (`farsight hip-library` writes one)
 //! hip_model = ""                 # hip: model config of the learned density (an output of kind
 //!                                # "trajectory_log_likelihood", classes = library size) run on
-//!                                # camera/<camera>/image; empty: the learned term is 0
+//!                                # camera/<camera>/image (with clock = "stamps" a costmap waits
+//!                                # for its frame's image); empty: the learned term is 0
 //! path_max_range_m = 50.0        # povnav: robot-frame path points further out are dropped
 //!                                # (near the horizon line, ground projection is ill-conditioned)
 //! health_rate_hz = 1.0
