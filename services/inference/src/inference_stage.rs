@@ -770,6 +770,29 @@ mod tests {
     }
 
     #[test]
+    fn a_model_of_the_robots_past_positions_is_refused_naming_its_input() {
+        // HIP's learned density wants past positions this stage has no
+        // poses for: refused at start, before ONNX Runtime is touched.
+        let model = repo().join("deploy/models/sim-hip/model.toml");
+        let env = StageEnv {
+            instance: "inference".into(),
+            config_dir: ".".into(),
+        };
+        let c = farsight_stage::parse_config::<InferenceConfig>(
+            &format!("model_config = {:?}\n", model.display().to_string()),
+            "inference.toml",
+        );
+        let e = match c {
+            Ok(c) => InferenceStage::new(c, &env)
+                .err()
+                .expect("refused")
+                .to_string(),
+            Err(e) => e.to_string(),
+        };
+        assert!(e.contains("past_input") && e.contains("\"past\""), "{e}");
+    }
+
+    #[test]
     fn output_sizes_come_from_the_model_shapes_or_its_input() {
         let m = ModelConfig::load(&repo().join("deploy/models/twinlitenet.toml")).unwrap();
         // TwinLiteNet: 2-class logits at 640 x 360, with its class table.
