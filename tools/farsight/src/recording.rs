@@ -25,6 +25,7 @@ use farsight_recording::read::Recording;
 use farsight_recording::record::{record, record_zenoh, RecordOptions};
 use farsight_recording::replay::{replay, Pace, ReplayOptions};
 use farsight_recording::write::RecordingWriter;
+use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -106,9 +107,10 @@ pub fn run_record(a: RecordArgs) -> Result<()> {
         let config = a.login.client_config("client", &a.connect)?;
         record_zenoh(&NetBus::open(config, &a.robot)?, writer, &opts, ready)?
     };
+    let mut text = String::new();
     for (topic, r) in &report {
-        println!(
-            "{topic:<34} {:>8} messages {:>10.3} MB  skipped {}",
+        text += &format!(
+            "{topic:<34} {:>8} messages {:>10.3} MB  skipped {}\n",
             r.written.messages,
             r.written.bytes as f64 / 1e6,
             // health/*: its frame number is the stage's last output, so a
@@ -117,7 +119,13 @@ pub fn run_record(a: RecordArgs) -> Result<()> {
                 .map_or_else(|| "(not counted)".to_string(), |n| n.to_string())
         );
     }
-    println!("wrote {}", a.out.display());
+    text += &format!("wrote {}\n", a.out.display());
+    // The file is finished whatever happens here: a parent that has gone
+    // (a demo stopped with its recorder) closes our stdout, and the report
+    // then goes to stderr instead of ending the recorder with a panic.
+    if let Err(e) = std::io::stdout().lock().write_all(text.as_bytes()) {
+        eprintln!("stdout: {e}; the report:\n{text}");
+    }
     Ok(())
 }
 

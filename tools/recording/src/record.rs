@@ -9,12 +9,15 @@
 //! on `health/*`, whose frame number is the stage's last output, not a
 //! message count).
 //!
-//! In lock-step the recorder is part of the answer set ([`Ack`]): after it
+//! In lock-step the recorder is part of the answer set (`--ack`): after it
 //! has written the answer to frame k (the velocity command) and everything
 //! published before it, it reports frame k on `health/<instance>`; a
 //! simulator that waits for that report (`farsight-sim run --await-health`)
 //! sends frame k+1 only then, so nothing runs ahead of the recorder and
-//! latest-value delivery loses none of the frame's messages. "Written"
+//! latest-value delivery loses none of the frame's messages. The report
+//! names the newest frame answered, never an older one: an answer-topic
+//! message that answers no frame (a stop stamped frame 0) is written but
+//! not reported, even when it comes just after the frame's answer. "Written"
 //! there means handed to the [`RecordingWriter`], whose open chunk is in
 //! memory until it is closed; the ack is about what the graph sent, not
 //! about crashes.
@@ -182,6 +185,9 @@ pub fn record(
         None => None,
     };
     let ack_topic = opts.ack.as_deref();
+    // The newest frame reported as answered: a report never goes back to
+    // an older frame.
+    let mut acked_frame = 0u64;
     let mut on_subscribed = Some(on_subscribed);
     loop {
         for t in bus.topics()? {
@@ -212,19 +218,27 @@ pub fn record(
             if let Some(h) = &mut health {
                 (0..taken).for_each(|_| h.input());
             }
-            if let (Some(stamp), Some(h)) = (answered, &mut health) {
+            if let (Some(first), Some(h)) = (answered, &mut health) {
                 // What was published before the answer may have come in
                 // after its topic's turn in this pass: one more pass takes
-                // it before the answer is reported.
-                match take_all(&subs, &mut writer, None) {
-                    Ok((_, taken)) => (0..taken).for_each(|_| h.input()),
+                // it before the answer is reported. That pass may take an
+                // answer too (the frame's, after a stop that answers no
+                // frame): it counts like one taken in the first.
+                let answer = match take_all(&subs, &mut writer, ack_topic) {
+                    Ok((late, taken)) => {
+                        (0..taken).for_each(|_| h.input());
+                        newest_answer(Some(first), late).unwrap_or(first)
+                    }
                     Err(e) => {
                         failure = Some(e);
                         return ControlFlow::Break(());
                     }
+                };
+                if answer.frame_seq > acked_frame {
+                    acked_frame = answer.frame_seq;
+                    h.output(answer, WallClock.now_ns());
+                    h.publish_now(WallClock.now_ns());
                 }
-                h.output(stamp, WallClock.now_ns());
-                h.publish_now(WallClock.now_ns());
             }
             if let Some(h) = &mut health {
                 h.tick(WallClock.now_ns());
@@ -284,8 +298,9 @@ pub fn record(
 }
 
 /// Takes what each subscription holds (a queue's every message, else the
-/// newest) and writes it; returns the stamp of the newest message written
-/// on `answer_topic`, and how many were written.
+/// newest) and writes it; returns the answer written on `answer_topic`
+/// with the highest frame number ([`newest_answer`]), and how many
+/// messages were written.
 fn take_all(
     subs: &[(String, AnySubscriber)],
     writer: &mut RecordingWriter,
@@ -299,7 +314,7 @@ fn take_all(
                     writer.write(topic, stamp, WallClock.now_ns(), &bytes)?;
                     taken += 1;
                     if Some(topic.as_str()) == answer_topic {
-                        answered = Some(stamp);
+                        answered = newest_answer(answered, Some(stamp));
                     }
                 }
             }
@@ -307,6 +322,18 @@ fn take_all(
         }
     }
     Ok((answered, taken))
+}
+
+/// Of two answers, the one to the later frame. The answer topic also
+/// carries messages that answer no frame (the servo's stop while its input
+/// is starved is stamped frame 0), and one can arrive just after the
+/// frame's answer: the newest message is not always the newest answer, and
+/// acknowledging it would leave the frame unacknowledged for good.
+fn newest_answer(a: Option<Stamp>, b: Option<Stamp>) -> Option<Stamp> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some(if b.frame_seq >= a.frame_seq { b } else { a }),
+        (a, b) => a.or(b),
+    }
 }
 
 /// A topic's queue where the bus declares one (every message, in order),
