@@ -404,10 +404,39 @@ pub fn init_tracing_with(format: LogFormat, default_filter: &str) {
 /// (visible even before logging is set up) and exits with status 1.
 /// Errors print in their alternate form, which for `anyhow` includes the causes.
 pub fn run_main<E: Display>(stage: &str, run: impl FnOnce() -> Result<(), E>) {
+    keep_freed_memory();
     if let Err(e) = run() {
         tracing::error!("{e:#}");
         eprintln!("farsight-{stage}: {e:#}");
         std::process::exit(1);
+    }
+}
+
+/// Keeps the memory a stage frees for its next step instead of handing it
+/// back to the kernel. A step's large buffers (a costmap layer, an image, a
+/// few hundred kilobytes to megabytes) are over glibc's default mmap and
+/// trim thresholds, so each was mapped, zeroed page by page on first touch
+/// and unmapped again on every frame: a sixth of costmap fusion's time on
+/// the FITAM chain went to those page faults. The usual real-time Linux
+/// setting: the heap grows to the stage's working set once and stays.
+fn keep_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        /// glibc's largest mmap threshold on 64-bit (32 MiB): anything
+        /// bigger is still mapped on its own and returned when freed.
+        const MMAP_THRESHOLD_BYTES: libc::c_int = 32 << 20;
+        /// Free memory at the heap's top kept before trimming.
+        const TRIM_THRESHOLD_BYTES: libc::c_int = 128 << 20;
+        // SAFETY: mallopt only sets allocator parameters; called before
+        // the stage starts its threads.
+        let set = unsafe {
+            libc::mallopt(libc::M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES) == 1
+                && libc::mallopt(libc::M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES) == 1
+        };
+        if !set {
+            // Before logging is set up: straight to the journal.
+            eprintln!("mallopt refused the heap thresholds; large buffers are mapped per step");
+        }
     }
 }
 
@@ -613,6 +642,40 @@ mod tests {
         fn check_rules(&self) -> Result<(), ConfigError> {
             ConfigError::check(!self.name.contains(' '), "name", &self.name, "no spaces")
         }
+    }
+
+    /// Minor page faults of the calling thread so far.
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    fn thread_page_faults() -> i64 {
+        let mut usage = std::mem::MaybeUninit::<libc::rusage>::zeroed();
+        // SAFETY: getrusage fills the struct it is given.
+        let rc = unsafe { libc::getrusage(libc::RUSAGE_THREAD, usage.as_mut_ptr()) };
+        assert_eq!(rc, 0);
+        // SAFETY: filled above (and zeroed before).
+        unsafe { usage.assume_init() }.ru_minflt
+    }
+
+    /// A step's shape: three layers of a megabyte each, made, filled and
+    /// freed, again and again. Once the heap has grown to them, later steps
+    /// take no page faults (with glibc's defaults each step mapped and
+    /// zeroed them again, a page fault per 4 KiB).
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    #[test]
+    fn a_steps_freed_buffers_serve_the_next_step_without_page_faults() {
+        keep_freed_memory();
+        let step = |fill: u8| {
+            let layers: Vec<Vec<u8>> = (0..3).map(|_| vec![fill; 1 << 20]).collect();
+            std::hint::black_box(&layers);
+        };
+        step(1);
+        step(2);
+        let before = thread_page_faults();
+        for k in 0..10 {
+            step(k);
+        }
+        let faults = thread_page_faults() - before;
+        // 10 steps of 768 pages each would be 7,680 faults.
+        assert!(faults < 100, "{faults} page faults in 10 steps");
     }
 
     #[test]
