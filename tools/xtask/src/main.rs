@@ -19,7 +19,7 @@
 //!   (simulate -> record -> label -> train -> export -> evaluate) for LRN's
 //!   affordance model and FITAM's far-field ensemble, and HIP's learned
 //!   density from its sticky random drives; `--ship` copies the models into
-//!   `deploy/models/`.
+//!   `deploy/models/` once every one asked for is trained and under 5 MB.
 //!
 //! Dependency-free on purpose, so it starts in seconds on a fresh clone.
 
@@ -892,7 +892,6 @@ struct TrainModels {
 struct TrainCtx<'a> {
     plan: &'a TrainPlan,
     smoke: bool,
-    ship: bool,
     work: PathBuf,
     bin: PathBuf,
     py: PathBuf,
@@ -958,7 +957,6 @@ fn train(args: &[String]) -> Result<()> {
     let cx = TrainCtx {
         plan: &plan,
         smoke,
-        ship,
         models: work.join("models"),
         work,
         bin: root().join("target/release"),
@@ -966,13 +964,17 @@ fn train(args: &[String]) -> Result<()> {
         trainer: root().join("tools/train/farsight_train.py"),
         step: &step,
     };
+    // Shipped only once every model asked for is trained: a failure part
+    // way leaves deploy/models as it was, not half retrained.
+    let mut made = Vec::new();
     if which.lrn_fitam {
-        train_lrn_fitam(&cx)?;
+        made.extend(train_lrn_fitam(&cx)?);
     }
     if which.hip {
-        train_hip(&cx)?;
+        made.extend(train_hip(&cx)?);
     }
     if ship {
+        ship_models(&made)?;
         eprintln!(
             "xtask: models shipped to {}",
             root().join("deploy/models").display()
@@ -987,8 +989,8 @@ fn train(args: &[String]) -> Result<()> {
 }
 
 /// Steps 2-6: LRN's and FITAM's recordings, labels, models and held-out
-/// report.
-fn train_lrn_fitam(cx: &TrainCtx) -> Result<()> {
+/// report. Returns what `--ship` copies (made file, place in deploy/models).
+fn train_lrn_fitam(cx: &TrainCtx) -> Result<Vec<(PathBuf, PathBuf)>> {
     let TrainCtx {
         plan,
         smoke,
@@ -1120,30 +1122,54 @@ fn train_lrn_fitam(cx: &TrainCtx) -> Result<()> {
         std::fs::write(models.join(m).join("TRAINED.md"), &provenance)
             .map_err(|e| format!("{m}: {e}"))?;
     }
-    if cx.ship {
-        for m in ["sim-lrn", "sim-fitam"] {
-            let to = root().join("deploy/models").join(m);
-            std::fs::create_dir_all(&to).map_err(|e| format!("{}: {e}", to.display()))?;
-            for f in ["model.onnx", "model.toml", "TRAINED.md"] {
-                std::fs::copy(models.join(m).join(f), to.join(f))
-                    .map_err(|e| format!("shipping {m}/{f}: {e}"))?;
-            }
-            let png = if m == "sim-lrn" {
-                "lrn_roc_pr.png"
-            } else {
-                "fitam_roc.png"
-            };
-            std::fs::copy(report.join(png), to.join(png))
-                .map_err(|e| format!("shipping {m}/{png}: {e}"))?;
+    let mut made = Vec::new();
+    for m in ["sim-lrn", "sim-fitam"] {
+        let to = root().join("deploy/models").join(m);
+        for f in ["model.onnx", "model.toml", "TRAINED.md"] {
+            made.push((models.join(m).join(f), to.join(f)));
         }
+        let png = if m == "sim-lrn" {
+            "lrn_roc_pr.png"
+        } else {
+            "fitam_roc.png"
+        };
+        made.push((report.join(png), to.join(png)));
     }
     eprintln!("xtask: LRN and FITAM report in {}", report.display());
+    Ok(made)
+}
+
+/// The most bytes a shipped model may have (issue 22: every shipped model
+/// under 5 MB, so the repository and a robot's update stay small).
+const MAX_SHIPPED_MODEL_BYTES: u64 = 5_000_000;
+
+/// `--ship`: copies what the chain made into deploy/models, once every
+/// model has been checked against [`MAX_SHIPPED_MODEL_BYTES`].
+fn ship_models(made: &[(PathBuf, PathBuf)]) -> Result<()> {
+    for (from, _) in made.iter().filter(|(f, _)| f.ends_with("model.onnx")) {
+        let bytes = std::fs::metadata(from)
+            .map_err(|e| format!("{}: {e}", from.display()))?
+            .len();
+        if bytes > MAX_SHIPPED_MODEL_BYTES {
+            return Err(format!(
+                "{}: {bytes} bytes, over the {MAX_SHIPPED_MODEL_BYTES} a shipped model may have; nothing shipped",
+                from.display()
+            ));
+        }
+    }
+    for (from, to) in made {
+        if let Some(dir) = to.parent() {
+            std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        }
+        std::fs::copy(from, to)
+            .map_err(|e| format!("shipping {} to {}: {e}", from.display(), to.display()))?;
+    }
     Ok(())
 }
 
 /// Steps 7-8: HIP's sticky random drives with their views, and its
-/// learned density.
-fn train_hip(cx: &TrainCtx) -> Result<()> {
+/// learned density. Returns what `--ship` copies.
+fn train_hip(cx: &TrainCtx) -> Result<Vec<(PathBuf, PathBuf)>> {
     (cx.step)(
         7,
         "HIP's data: sticky random drives, the camera's view at each pose",
@@ -1194,12 +1220,8 @@ fn train_hip(cx: &TrainCtx) -> Result<()> {
     );
     std::fs::write(hip_out.join("TRAINED.md"), hip_provenance)
         .map_err(|e| format!("sim-hip: {e}"))?;
-    if cx.ship {
-        let to = root().join("deploy/models/sim-hip");
-        for f in ["model.onnx", "model.toml", "TRAINED.md"] {
-            std::fs::copy(hip_out.join(f), to.join(f))
-                .map_err(|e| format!("shipping sim-hip/{f}: {e}"))?;
-        }
-    }
-    Ok(())
+    let to = root().join("deploy/models/sim-hip");
+    Ok(["model.onnx", "model.toml", "TRAINED.md"]
+        .map(|f| (hip_out.join(f), to.join(f)))
+        .to_vec())
 }
