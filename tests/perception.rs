@@ -146,6 +146,107 @@ fn farsight_infer_writes_masks_and_overlays_a_person_can_check() {
     assert!(out.join(format!("{stem}.classes.png")).exists());
 }
 
+/// Runs `farsight infer` with `args`; its exit code and stderr.
+fn farsight_infer(ns: &Namespace, args: &[&str]) -> (Option<i32>, String) {
+    let mut p = farsight_tests::Proc::start("farsight", &[&["infer"], args].concat(), ns);
+    let code = p.wait_exit(Duration::from_secs(60));
+    (code, p.stderr_so_far())
+}
+
+fn png(path: &std::path::Path) -> (farsight_interfaces::msg::ImageHeader, Vec<u8>) {
+    farsight_imaging::decode_png(&std::fs::read(path).unwrap()).unwrap()
+}
+
+/// The learned models' outputs drawn over real frames (what the README's
+/// pictures are made with): FITAM's far field as bands across the top,
+/// HIP's ranking of its library in the lower right corner (and as CSV),
+/// the frame untouched elsewhere; every overlay on one contact sheet.
+#[test]
+fn farsight_infer_draws_the_learned_models_and_a_contact_sheet() {
+    let ns = Namespace::new("inferdraw");
+    let root = repo_root();
+    let orfd = root.join("../shared/data/orfd/image_data/1623721491895.png");
+    let wvn = root.join("../shared/data/wvn/mountain_bike_trail_raw.png");
+    let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let (frame_h, frame) = png(&orfd);
+    assert_eq!((frame_h.width, frame_h.height), (1280, 720));
+    let model = |m: &str| s(&root.join("deploy/models").join(m).join("model.toml"));
+
+    let out = ns.root.join("fitam");
+    let sheet = ns.root.join("fitam-sheet.png");
+    let (code, err) = farsight_infer(
+        &ns,
+        &[
+            "--model-config",
+            &model("sim-fitam"),
+            &s(&orfd),
+            &s(&wvn),
+            "--out",
+            &s(&out),
+            "--sheet",
+            &s(&sheet),
+            "--sheet-columns",
+            "2",
+            "--sheet-width",
+            "200",
+        ],
+    );
+    assert_eq!(code, Some(0), "{err}");
+    let (oh, overlay) = png(&out.join("1623721491895.overlay.png"));
+    assert_eq!((oh.width, oh.height), (1280, 720));
+    // Three radial bands of 1/16 of the height each, the frame below them.
+    let row = |img: &[u8], y: usize| img[y * 1280 * 3..(y + 1) * 1280 * 3].to_vec();
+    assert_ne!(row(&overlay, 10), row(&frame, 10));
+    assert_ne!(row(&overlay, 130), row(&frame, 130));
+    assert_eq!(overlay[140 * 1280 * 3..], frame[140 * 1280 * 3..]);
+    // Two cells 200 wide, as tall as the first frame's aspect makes them.
+    let (sh, _) = png(&sheet);
+    assert_eq!((sh.width, sh.height), (400, 113));
+
+    // HIP needs the library it ranks, and names the flag that gives it.
+    let out = ns.root.join("hip");
+    let (code, err) = farsight_infer(
+        &ns,
+        &[
+            "--model-config",
+            &model("sim-hip"),
+            &s(&orfd),
+            "--out",
+            &s(&out),
+        ],
+    );
+    assert_eq!(code, Some(1));
+    assert!(err.contains("--hip-library"), "{err}");
+    let library = s(&root.join("deploy/models/sim-hip/hip-library.toml"));
+    let (code, err) = farsight_infer(
+        &ns,
+        &[
+            "--model-config",
+            &model("sim-hip"),
+            "--hip-library",
+            &library,
+            &s(&orfd),
+            "--out",
+            &s(&out),
+        ],
+    );
+    assert_eq!(code, Some(0), "{err}");
+    let csv = std::fs::read_to_string(out.join("1623721491895.log_q.csv")).unwrap();
+    let log_q: Vec<f64> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(1).unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(log_q.len(), 200);
+    assert!(log_q.iter().all(|q| q.is_finite()), "{csv}");
+    let (_, overlay) = png(&out.join("1623721491895.overlay.png"));
+    let px = |img: &[u8], x: usize, y: usize| img[(y * 1280 + x) * 3..][..3].to_vec();
+    // The inset (the lower right 360x360) is drawn; the rest is the frame.
+    assert_ne!(px(&overlay, 1279, 719), px(&frame, 1279, 719));
+    assert_eq!(overlay[..360 * 1280 * 3], frame[..360 * 1280 * 3]);
+    assert_eq!(px(&overlay, 100, 700), px(&frame, 100, 700));
+}
+
 #[test]
 fn depth_normals_stage_marks_the_orfd_road_navigable() {
     let ns = Namespace::new("normalsstage");

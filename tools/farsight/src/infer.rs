@@ -5,7 +5,25 @@
 //! - `<name>.classes.png`: class ids, 8-bit;
 //! - `<name>.navigability.png`: 255 = navigable, 8-bit;
 //! - `<name>.heatmap.png`: affordance in [0, 1] as 16-bit;
-//! - `<name>.overlay.png`: the frame with navigability (green/red) or classes over it.
+//! - `<name>.log_q.csv`: HIP's log q(tau | o) of each library trajectory;
+//! - `<name>.overlay.png`: the frame with navigability (green/red), classes,
+//!   the affordance heatmap (from 0.1: red, turning yellow toward 1) or
+//!   FITAM's far-field classes over it. The
+//!   far field is drawn as three bands across the top, one per radial bin
+//!   (the farthest on top), each image slice a block coloured by the
+//!   ensemble's class (the slowest red, the fastest green), darker where
+//!   the members' mean probability of it is lower.
+//!
+//! - HIP's learned density (a model with `past_input`, scored over the
+//!   trajectory library given by `--hip-library`): the frame with the
+//!   library drawn top-down in its lower right corner, robot at the
+//!   bottom centre facing up, each trajectory coloured by its rank under
+//!   log q (dark blue the least likely, yellow the most; the ten most
+//!   likely drawn thicker). The past it is given is a straight drive at
+//!   `--hip-past-speed-mps`, as a still image has none.
+//!
+//! With `--sheet FILE` every overlay also goes, scaled down, into one PNG
+//! side by side: a contact sheet to put in a report.
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
@@ -27,6 +45,216 @@ pub struct InferArgs {
     /// Output folder.
     #[arg(long, default_value = "out/infer")]
     out: PathBuf,
+    /// Also write every overlay, scaled to `--sheet-width`, into this one PNG
+    /// (`--sheet-columns` per row, in input order).
+    #[arg(long)]
+    sheet: Option<PathBuf>,
+    /// Width of each overlay on the sheet (pixels; the height keeps the
+    /// aspect of the first).
+    #[arg(long, default_value_t = 320, value_parser = clap::value_parser!(u32).range(16..=4096))]
+    sheet_width: u32,
+    /// Overlays per row of the sheet.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
+    sheet_columns: u32,
+    /// HIP: the trajectory library the model was exported with
+    /// (`hip-library.toml`), needed to draw its scores.
+    #[arg(long)]
+    hip_library: Option<PathBuf>,
+    /// HIP: the speed of the straight drive given as the robot's past
+    /// positions (m/s).
+    #[arg(long, default_value_t = 1.0, value_parser = parse_speed_mps)]
+    hip_past_speed_mps: f64,
+}
+
+fn parse_speed_mps(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if (0.0..=20.0).contains(&v) => Ok(v),
+        Ok(v) => Err(format!("{v} m/s: expected 0 <= speed <= 20")),
+        Err(e) => Err(format!("{s:?}: {e}")),
+    }
+}
+
+/// The colour a fraction `f` of the way from `a` to `b`.
+fn lerp_rgb(a: [u8; 3], b: [u8; 3], f: f64) -> [u8; 3] {
+    std::array::from_fn(|i| (a[i] as f64 + (b[i] as f64 - a[i] as f64) * f).round() as u8)
+}
+
+/// HIP's scores as the library drawn top-down over the frame's lower right
+/// corner (see the module docs).
+fn hip_overlay(
+    rgb: &[u8],
+    fw: usize,
+    fh: usize,
+    library: &[Vec<[f64; 2]>],
+    log_q: &[f32],
+    past: &[f32],
+) -> Result<Vec<u8>> {
+    if log_q.len() != library.len() {
+        bail!(
+            "the model scores {} trajectories but --hip-library holds {}: use the library it was exported with",
+            log_q.len(),
+            library.len()
+        );
+    }
+    let mut out = rgb.to_vec();
+    let side = (fh / 2).min(fw / 2).max(16);
+    let (x0, y0) = (fw - side, fh - side);
+    // Darken the inset so the lines read on any frame.
+    for y in y0..fh {
+        for px in out[(y * fw + x0) * 3..(y * fw + fw) * 3].iter_mut() {
+            *px /= 3;
+        }
+    }
+    // Metres ahead (up) and to the left (left) -> inset pixels.
+    let (ahead_m, half_width_m) = (4.0, 2.5);
+    let to_px = |p: [f64; 2]| -> (f64, f64) {
+        let u = (0.5 - p[1] / (2.0 * half_width_m)) * side as f64;
+        let v = (1.0 - (p[0] + 0.5) / (ahead_m + 0.5)) * side as f64;
+        (x0 as f64 + u, y0 as f64 + v)
+    };
+    let mut plot = |x: f64, y: f64, c: [u8; 3], r: i64| {
+        for dy in -r..=r {
+            for dx in -r..=r {
+                let (px, py) = (x.round() as i64 + dx, y.round() as i64 + dy);
+                if px >= x0 as i64 && py >= y0 as i64 && (px as usize) < fw && (py as usize) < fh {
+                    let at = (py as usize * fw + px as usize) * 3;
+                    out[at..at + 3].copy_from_slice(&c);
+                }
+            }
+        }
+    };
+    let mut order: Vec<usize> = (0..library.len()).collect();
+    order.sort_by(|&a, &b| log_q[a].total_cmp(&log_q[b]));
+    let n = order.len();
+    for (rank, &k) in order.iter().enumerate() {
+        // Dark blue -> magenta -> yellow with the rank.
+        let t = rank as f64 / (n.max(2) - 1) as f64;
+        let (blue, magenta, yellow) = ([40, 40, 150], [200, 40, 120], [255, 225, 0]);
+        let c = if t < 0.5 {
+            lerp_rgb(blue, magenta, 2.0 * t)
+        } else {
+            lerp_rgb(magenta, yellow, 2.0 * t - 1.0)
+        };
+        let r = if rank + 10 >= n { 1 } else { 0 };
+        let points: Vec<(f64, f64)> = std::iter::once([0.0, 0.0])
+            .chain(library[k].iter().copied())
+            .map(to_px)
+            .collect();
+        for w in points.windows(2) {
+            let steps = ((w[1].0 - w[0].0).hypot(w[1].1 - w[0].1) * 2.0)
+                .ceil()
+                .max(1.0);
+            for i in 0..=steps as usize {
+                let f = i as f64 / steps;
+                plot(
+                    w[0].0 + f * (w[1].0 - w[0].0),
+                    w[0].1 + f * (w[1].1 - w[0].1),
+                    c,
+                    r,
+                );
+            }
+        }
+    }
+    for p in past.chunks_exact(2) {
+        let (x, y) = to_px([p[0] as f64, p[1] as f64]);
+        plot(x, y, [200, 200, 200], 1);
+    }
+    let (x, y) = to_px([0.0, 0.0]);
+    plot(x, y, [255, 255, 255], 3);
+    Ok(out)
+}
+
+/// Colour of class `k` of `n` ordered slowest to fastest: red to yellow to
+/// green.
+fn speed_class_color(k: usize, n: usize) -> [u8; 3] {
+    let t = k as f32 / (n.max(2) - 1) as f32;
+    if t < 0.5 {
+        [220, (40.0 + 360.0 * t) as u8, 40]
+    } else {
+        [(220.0 - 360.0 * (t - 0.5)) as u8, 220, 40]
+    }
+}
+
+/// FITAM's far field as bands over the top of the frame (see the module
+/// docs): `shape` is `[slices, radial bins, members, classes]`.
+fn far_field_overlay(
+    rgb: &[u8],
+    fw: usize,
+    fh: usize,
+    shape: [usize; 4],
+    logits: &[f32],
+) -> Result<Vec<u8>> {
+    use farsight_bin_projection::fitam::{ensemble_observation, FitamBinsConfig};
+    let [slices, radial, members, classes] = shape;
+    let cfg = FitamBinsConfig {
+        // Only the class and its probability are drawn: any speeds do.
+        class_speeds_mps: vec![1.0; classes],
+        ..Default::default()
+    };
+    let per_slice = radial * members * classes;
+    let cells = (0..slices)
+        .map(|s| {
+            let l = logits
+                .get(s * per_slice..(s + 1) * per_slice)
+                .context("far-field output shorter than its shape")?;
+            Ok(ensemble_observation(l, radial, members, classes, &cfg)?)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    // Rows of the colour grid: the radial bins, then the untouched frame.
+    const ROWS: usize = 16;
+    Ok(farsight_imaging::overlay(
+        rgb,
+        fw,
+        fh,
+        slices,
+        ROWS,
+        0.75,
+        |i| {
+            let (row, slice) = (i / slices, i % slices);
+            let cell = cells[slice].get(radial.checked_sub(row + 1)?)?;
+            let c = speed_class_color(cell.class_id as usize, classes);
+            let k = 0.25 + 0.75 * cell.probability;
+            Some(c.map(|v| (v as f32 * k) as u8))
+        },
+    ))
+}
+
+/// Scales each RGB8 overlay into a `width`-wide cell (as tall as the first
+/// overlay's aspect makes it; another aspect is fitted inside, centred, on
+/// white) and lays them out `columns` a row.
+fn contact_sheet(
+    overlays: &[(usize, usize, Vec<u8>)],
+    width: u32,
+    columns: u32,
+) -> Result<(usize, usize, Vec<u8>)> {
+    use fast_image_resize as fir;
+    let (w0, h0, _) = overlays.first().context("no overlay for the sheet")?;
+    let tw = width as usize;
+    let th = ((*h0 as f64) * tw as f64 / (*w0).max(1) as f64)
+        .round()
+        .max(1.0) as usize;
+    let cols = (columns as usize).min(overlays.len());
+    let rows = overlays.len().div_ceil(cols);
+    let (sw, sh) = (cols * tw, rows * th);
+    let mut sheet = vec![255u8; sw * sh * 3];
+    let mut resizer = fir::Resizer::new();
+    let options = fir::ResizeOptions::new()
+        .resize_alg(fir::ResizeAlg::Convolution(fir::FilterType::Lanczos3));
+    for (k, (w, h, rgb)) in overlays.iter().enumerate() {
+        let scale = (tw as f64 / (*w).max(1) as f64).min(th as f64 / (*h).max(1) as f64);
+        let dw = ((*w as f64 * scale).round() as usize).clamp(1, tw);
+        let dh = ((*h as f64 * scale).round() as usize).clamp(1, th);
+        let src = fir::images::ImageRef::new(*w as u32, *h as u32, rgb, fir::PixelType::U8x3)?;
+        let mut dst = fir::images::Image::new(dw as u32, dh as u32, fir::PixelType::U8x3);
+        resizer.resize(&src, &mut dst, &options)?;
+        let x0 = (k % cols) * tw + (tw - dw) / 2;
+        let y0 = (k / cols) * th + (th - dh) / 2;
+        for (y, row) in dst.buffer().chunks_exact(dw * 3).enumerate() {
+            let at = ((y0 + y) * sw + x0) * 3;
+            sheet[at..at + dw * 3].copy_from_slice(row);
+        }
+    }
+    Ok((sw, sh, sheet))
 }
 
 fn collect(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
@@ -72,10 +300,32 @@ pub fn run(a: InferArgs) -> Result<()> {
         .map(|p| ClassTableFile::open(&p))
         .transpose()?;
     let model = OnnxModel::load(&config).context("loading the model")?;
+    // A model of the robot's past positions (HIP) is given a straight
+    // drive, and its scores are drawn over the library it ranks.
+    let past = config.past_input.as_ref().map(|spec| {
+        let speed = a.hip_past_speed_mps;
+        let t_ns = 100_000_000_000;
+        let pose_at = |t: u64| Some([t as f64 * 1e-9 * speed, 0.0, 0.0]);
+        farsight_subgoal_selection::hip::past_positions(pose_at, t_ns, spec.points, spec.step_s)
+            .expect("a straight drive has a pose at every time")
+    });
+    let library = match (&past, &a.hip_library) {
+        (Some(_), Some(p)) => Some(
+            farsight_stage::load_config_file::<farsight_subgoal_selection::hip::LibraryFile>(p)
+                .with_context(|| format!("--hip-library {}", p.display()))?
+                .trajectories,
+        ),
+        (Some(_), None) => bail!(
+            "{}: the model takes past positions and scores a trajectory library; give that library with --hip-library",
+            a.model_config.display()
+        ),
+        (None, _) => None,
+    };
     let mut backend = Backend::Onnx(Box::new(model));
     let files = collect(&a.inputs)?;
     std::fs::create_dir_all(&a.out)?;
     let (mut ok, mut failed) = (0usize, 0usize);
+    let mut overlays = Vec::new();
     let mut total = Timings::default();
     for (i, file) in files.iter().enumerate() {
         let stem = file
@@ -88,6 +338,10 @@ pub fn run(a: InferArgs) -> Result<()> {
             // PNG or JPEG, refused from its header above 8192x8192.
             let (h, frame) = farsight_imaging::decode_image(&bytes)?;
             let mut t = Timings::default();
+            if let (Some(past), Backend::Onnx(model)) = (&past, &mut backend) {
+                // Each run takes the past it was given.
+                model.set_past(past)?;
+            }
             let p = backend.run(&h, &frame, table.as_ref().map(|t| t.table()), &mut t)?;
             let (w, hh) = (p.width, p.height);
             let out = |suffix: &str| a.out.join(format!("{stem}.{suffix}.png"));
@@ -105,6 +359,14 @@ pub fn run(a: InferArgs) -> Result<()> {
                     PixelEncoding::MONO16,
                     &farsight_imaging::unit_to_mono16(hm),
                 )?;
+            }
+            if let Some(log_q) = &p.trajectory_log_q {
+                let csv: String = std::iter::once("trajectory,log_q\n".to_string())
+                    .chain(log_q.iter().enumerate().map(|(k, q)| format!("{k},{q}\n")))
+                    .collect();
+                let path = a.out.join(format!("{stem}.log_q.csv"));
+                std::fs::write(&path, csv)
+                    .with_context(|| format!("writing {}", path.display()))?;
             }
             let rgb = match h.encoding {
                 PixelEncoding::RGB8 => frame,
@@ -128,13 +390,24 @@ pub fn run(a: InferArgs) -> Result<()> {
                     Some(farsight_imaging::class_color(c.ids[i]))
                 })
             } else if let Some(hm) = &p.heatmap {
+                // Below 0.1 the frame shows through untouched; above, red
+                // turning yellow toward 1.
                 farsight_imaging::overlay(&rgb, fw, fh, w, hh, 0.6, |i| {
-                    Some([(hm[i] * 255.0) as u8, 0, 0])
+                    (hm[i] >= 0.1).then(|| lerp_rgb([200, 0, 0], [255, 240, 0], hm[i] as f64))
                 })
+            } else if let Some((shape, logits)) = &p.far_field {
+                far_field_overlay(&rgb, fw, fh, *shape, logits)?
+            } else if let (Some(log_q), Some(library), Some(past)) =
+                (&p.trajectory_log_q, &library, &past)
+            {
+                hip_overlay(&rgb, fw, fh, library, log_q, past)?
             } else {
                 rgb
             };
             write_png(&out("overlay"), fw, fh, PixelEncoding::RGB8, &overlay)?;
+            if a.sheet.is_some() {
+                overlays.push((fw, fh, overlay));
+            }
             Ok(t)
         })();
         match result {
@@ -174,6 +447,11 @@ pub fn run(a: InferArgs) -> Result<()> {
     );
     if ok == 0 {
         bail!("no image could be processed");
+    }
+    if let Some(path) = &a.sheet {
+        let (w, h, sheet) = contact_sheet(&overlays, a.sheet_width, a.sheet_columns)?;
+        write_png(path, w, h, PixelEncoding::RGB8, &sheet)?;
+        println!("sheet of {} overlays: {}", overlays.len(), path.display());
     }
     Ok(())
 }
