@@ -314,21 +314,44 @@ pub fn cost_to_go(grid: &CostGrid, goal: (usize, usize)) -> Vec<f64> {
 /// frame changes tens of thousands of cells; popping those was a fifth of
 /// the navigation benchmark's time.) The vertex on top is the same one a
 /// lazy heap would give: the order is total.
-#[derive(Debug, Default)]
+///
+/// A repair pops only the vertices keyed below the start's key; the many
+/// a far-field frame queues beside and behind the robot stay queued,
+/// frame after frame. Those keyed at or above [`Self::bound`] wait in an
+/// unordered list (`far`) instead of the heap: queuing, re-keying and
+/// removing them is O(1), and the heap the search works in stays small.
+/// They join the heap when the search reaches the bound
+/// ([`Self::top`]), so what comes out on top is unchanged.
+#[derive(Debug)]
 struct VertexQueue {
-    /// A binary min-heap. Vertex indices fit in u32: the planner's grid
-    /// side is at most 20,000 cells (`max_side_cells`).
+    /// The heap. Vertex indices fit in u32: the planner's grid side is at
+    /// most 20,000 cells (`max_side_cells`).
     heap: Vec<(Key, u32)>,
-    /// Where each vertex sits in `heap`; [`Self::ABSENT`] when not queued.
+    /// Queued vertices keyed (first component) at or above `bound`.
+    far: Vec<(Key, u32)>,
+    /// No vertex in `far` has a first key component below this.
+    bound: f64,
+    /// Where each vertex sits: its index in `heap`, [`Self::FAR`] with its
+    /// index in `far`, or [`Self::ABSENT`].
     place: Vec<u32>,
+}
+
+impl Default for VertexQueue {
+    fn default() -> Self {
+        Self::new(0)
+    }
 }
 
 impl VertexQueue {
     const ABSENT: u32 = u32::MAX;
+    /// Marks a place in `far` (vertex counts stay below 2^31).
+    const FAR: u32 = 1 << 31;
 
     fn new(vertices: usize) -> Self {
         Self {
             heap: Vec::new(),
+            far: Vec::new(),
+            bound: f64::INFINITY,
             place: vec![Self::ABSENT; vertices],
         }
     }
@@ -347,16 +370,90 @@ impl VertexQueue {
         (a.0 .0.to_bits(), a.0 .1.to_bits(), a.1) < (b.0 .0.to_bits(), b.0 .1.to_bits(), b.1)
     }
 
-    fn top(&self) -> Option<(Key, usize)> {
-        self.heap.first().map(|&(k, v)| (k, v as usize))
+    /// The first vertex in key order, moving waiting ones into the heap
+    /// when the heap's top is at or past the bound.
+    fn top(&mut self) -> Option<(Key, usize)> {
+        loop {
+            match self.heap.first() {
+                Some(&(k, v)) if k.0 < self.bound || self.far.is_empty() => {
+                    return Some((k, v as usize))
+                }
+                None if self.far.is_empty() => return None,
+                _ => {
+                    // The smallest waiting key and a margin above it: at
+                    // least it joins, so the loop ends.
+                    let least = self
+                        .far
+                        .iter()
+                        .map(|e| e.0 .0)
+                        .fold(f64::INFINITY, f64::min);
+                    self.raise_bound(least + Self::margin(least));
+                }
+            }
+        }
+    }
+
+    /// How far above the start's key the bound is set: vertices just
+    /// above it are popped when the start's key rises in a repair.
+    fn margin(k: f64) -> f64 {
+        (0.01 * k).max(1.0)
+    }
+
+    /// Vertices keyed at or above `k1` (plus [`Self::margin`]) may wait
+    /// outside the heap from now on.
+    fn set_bound(&mut self, k1: f64) {
+        let b = k1 + Self::margin(k1);
+        if b > self.bound {
+            self.raise_bound(b);
+        } else {
+            self.bound = b;
+        }
+    }
+
+    /// Moves the waiting vertices keyed below `b` into the heap.
+    fn raise_bound(&mut self, b: f64) {
+        self.bound = b;
+        let mut i = 0;
+        while i < self.far.len() {
+            if self.far[i].0 .0 < b {
+                let e = self.far_take(i);
+                self.heap_push(e);
+            } else {
+                i += 1;
+            }
+        }
+    }
+
+    /// Takes entry `i` out of `far` (its vertex's place is the caller's).
+    fn far_take(&mut self, i: usize) -> (Key, u32) {
+        let e = self.far.swap_remove(i);
+        if let Some(moved) = self.far.get(i) {
+            self.place[moved.1 as usize] = Self::FAR | i as u32;
+        }
+        e
+    }
+
+    fn heap_push(&mut self, e: (Key, u32)) {
+        self.heap.push(e);
+        self.sift_up(self.heap.len() - 1);
     }
 
     /// Queues `v` with key `k`, or re-keys it if queued.
     fn set(&mut self, v: usize, k: Key) {
         match self.place[v] {
-            Self::ABSENT => {
-                self.heap.push((k, v as u32));
-                self.sift_up(self.heap.len() - 1);
+            Self::ABSENT if k.0 >= self.bound => {
+                self.place[v] = Self::FAR | self.far.len() as u32;
+                self.far.push((k, v as u32));
+            }
+            Self::ABSENT => self.heap_push((k, v as u32)),
+            p if p & Self::FAR != 0 => {
+                let i = (p & !Self::FAR) as usize;
+                if k.0 >= self.bound {
+                    self.far[i].0 = k;
+                } else {
+                    self.far_take(i);
+                    self.heap_push((k, v as u32));
+                }
             }
             p => {
                 let p = p as usize;
@@ -377,6 +474,10 @@ impl VertexQueue {
             return;
         }
         self.place[v] = Self::ABSENT;
+        if p & Self::FAR != 0 {
+            self.far_take((p & !Self::FAR) as usize);
+            return;
+        }
         let last = self.heap.pop().expect("a queued vertex is in the heap");
         let p = p as usize;
         if p < self.heap.len() {
@@ -384,6 +485,22 @@ impl VertexQueue {
             let p = self.sift_down(p);
             self.sift_up(p);
         }
+    }
+
+    /// Empties the queue (every vertex absent, no bound).
+    fn clear(&mut self) {
+        for &(_, v) in self.heap.iter().chain(&self.far) {
+            self.place[v as usize] = Self::ABSENT;
+        }
+        self.heap.clear();
+        self.far.clear();
+        self.bound = f64::INFINITY;
+    }
+
+    /// How many vertices are queued.
+    #[cfg(test)]
+    fn len(&self) -> usize {
+        self.heap.len() + self.far.len()
     }
 
     /// Moves the entry at `i` up to its place (entries it passes move down
@@ -539,7 +656,7 @@ impl DStarLite {
         )
     }
 
-    fn top(&self) -> Option<(Key, usize)> {
+    fn top(&mut self) -> Option<(Key, usize)> {
         self.open.top()
     }
 
@@ -685,10 +802,7 @@ impl DStarLite {
     /// search's values.
     pub fn retarget(&mut self, goal: (usize, usize)) {
         self.gr.fill([f64::INFINITY; 2]);
-        for &(_, v) in &self.open.heap {
-            self.open.place[v as usize] = VertexQueue::ABSENT;
-        }
-        self.open.heap.clear();
+        self.open.clear();
         self.km = 0.0;
         self.last_start = self.start;
         self.goal = goal;
@@ -760,6 +874,9 @@ impl DStarLite {
                 a.iter().map(|(_, i)| i).chain([c]).for_each(&mut mark);
             }
         }
+        // Vertices the repair will not reach wait outside the heap.
+        let si = self.idx(self.start);
+        self.open.set_bound(self.key(si).0);
         let mut to_update = std::mem::take(&mut self.to_update);
         for &i in &to_update {
             self.dirty[i] = false;
@@ -871,6 +988,68 @@ mod tests {
         }
     }
 
+    /// The queue against a plain ordered set, under random queuing,
+    /// re-keying (up and down), removal, popping and bounds that move
+    /// both ways: the same vertex comes out on top every time, whether
+    /// the vertices wait in the heap or outside it.
+    #[test]
+    fn the_queue_gives_the_same_top_as_an_ordered_set_whatever_its_bound() {
+        use std::collections::BTreeMap;
+        let mut rng = Lcg(5);
+        let n = 300;
+        let mut q = VertexQueue::new(n);
+        // vertex -> key, and the keys in order.
+        let mut model: BTreeMap<usize, Key> = BTreeMap::new();
+        let ordered = |m: &BTreeMap<usize, Key>| {
+            m.iter()
+                .map(|(&v, &k)| (k, v))
+                .min_by(|a, b| a.0.cmp(&b.0).then(a.1.cmp(&b.1)))
+        };
+        let (mut spilled, mut waited) = (0, 0);
+        for step in 0..20_000 {
+            let v = (rng.next() * n as f64) as usize;
+            let r = rng.next();
+            if r < 0.5 {
+                let k1 = (rng.next() * 100.0).floor();
+                let k = Key(k1, (rng.next() * k1).floor());
+                q.set(v, k);
+                model.insert(v, k);
+            } else if r < 0.65 {
+                q.remove(v);
+                model.remove(&v);
+            } else if r < 0.9 {
+                let top = q.top();
+                assert_eq!(top, ordered(&model), "step {step}");
+                if let Some((_, v)) = top {
+                    q.remove(v);
+                    model.remove(&v);
+                }
+            } else {
+                let before = q.far.len();
+                q.set_bound((rng.next() * 100.0).floor());
+                spilled += usize::from(q.far.len() < before);
+            }
+            waited = waited.max(q.far.len());
+            assert_eq!(q.len(), model.len());
+            for (&v, &k) in &model {
+                let p = q.place[v];
+                let e = if p & VertexQueue::FAR != 0 {
+                    q.far[(p & !VertexQueue::FAR) as usize]
+                } else {
+                    q.heap[p as usize]
+                };
+                assert_eq!(e, (k, v as u32), "step {step}: vertex {v}'s place");
+            }
+        }
+        // Both halves were used.
+        assert!(
+            waited > 20 && spilled > 20,
+            "{waited} waiting at most, {spilled} spills"
+        );
+        q.clear();
+        assert_eq!((q.len(), q.top()), (0, None));
+    }
+
     #[test]
     fn changing_cells_together_leaves_the_planner_as_changing_them_one_by_one() {
         let mut rng = Lcg(11);
@@ -905,7 +1084,18 @@ mod tests {
                 assert_eq!(one.compute(), all.compute());
                 assert_eq!(one.path(), all.path());
                 assert_eq!((&one.gr, one.km), (&all.gr, all.km));
-                assert_eq!(one.open.heap.len(), all.open.heap.len());
+                // The same vertices queued, in the heap or waiting outside
+                // it as each one's bound had it. (Their keys may differ:
+                // a key is a lower bound, renewed when its vertex is
+                // popped, and which are popped depends on that split.)
+                let queued = |d: &DStarLite| {
+                    let mut q: Vec<u32> =
+                        d.open.heap.iter().chain(&d.open.far).map(|e| e.1).collect();
+                    q.sort();
+                    q
+                };
+                assert_eq!(one.open.len(), all.open.len());
+                assert_eq!(queued(&one), queued(&all));
             }
         }
     }
