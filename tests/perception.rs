@@ -218,18 +218,21 @@ fn farsight_infer_draws_the_learned_models_and_a_contact_sheet() {
     assert_eq!(code, Some(1));
     assert!(err.contains("--hip-library"), "{err}");
     let library = s(&root.join("deploy/models/sim-hip/hip-library.toml"));
-    let (code, err) = farsight_infer(
-        &ns,
-        &[
-            "--model-config",
-            &model("sim-hip"),
-            "--hip-library",
-            &library,
-            &s(&orfd),
-            "--out",
-            &s(&out),
-        ],
-    );
+    let hip = |library: &str, frame: &std::path::Path| {
+        farsight_infer(
+            &ns,
+            &[
+                "--model-config",
+                &model("sim-hip"),
+                "--hip-library",
+                library,
+                &s(frame),
+                "--out",
+                &s(&out),
+            ],
+        )
+    };
+    let (code, err) = hip(&library, &orfd);
     assert_eq!(code, Some(0), "{err}");
     let csv = std::fs::read_to_string(out.join("1623721491895.log_q.csv")).unwrap();
     let log_q: Vec<f64> = csv
@@ -239,6 +242,38 @@ fn farsight_infer_draws_the_learned_models_and_a_contact_sheet() {
         .collect();
     assert_eq!(log_q.len(), 200);
     assert!(log_q.iter().all(|q| q.is_finite()), "{csv}");
+    // A library the model was not exported with is refused, naming it;
+    // a frame too small for the inset is drawn as it is.
+    let short = ns.write(
+        "short-library.toml",
+        &format!(
+            "step_s = 0.2\ntrajectories = [[{}]]\n",
+            ["[0.1, 0.0]"; 10].join(", ")
+        ),
+    );
+    let (code, err) = hip(&s(&short), &orfd);
+    assert_eq!(code, Some(1));
+    assert!(
+        err.contains("short-library.toml: 1 trajectories, but the model scores 200"),
+        "{err}"
+    );
+    let tiny = ns.root.join("tiny.png");
+    let tiny_frame: Vec<u8> = (0..24 * 20 * 3).map(|i| (i * 7 % 251) as u8).collect();
+    let header = farsight_interfaces::msg::ImageHeader::packed(
+        farsight_interfaces::msg::Stamp::default(),
+        0,
+        24,
+        20,
+        PixelEncoding::RGB8,
+    );
+    std::fs::write(
+        &tiny,
+        farsight_imaging::encode_png(&header, &tiny_frame).unwrap(),
+    )
+    .unwrap();
+    let (code, err) = hip(&library, &tiny);
+    assert_eq!(code, Some(0), "{err}");
+    assert_eq!(png(&out.join("tiny.overlay.png")).1, tiny_frame);
     let (_, overlay) = png(&out.join("1623721491895.overlay.png"));
     let px = |img: &[u8], x: usize, y: usize| img[(y * 1280 + x) * 3..][..3].to_vec();
     // The inset (the lower right 360x360) is drawn; the rest is the frame.

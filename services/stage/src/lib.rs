@@ -414,11 +414,13 @@ pub fn run_main<E: Display>(stage: &str, run: impl FnOnce() -> Result<(), E>) {
 
 /// Keeps the memory a stage frees for its next step instead of handing it
 /// back to the kernel. A step's large buffers (a costmap layer, an image, a
-/// few hundred kilobytes to megabytes) are over glibc's default mmap and
-/// trim thresholds, so each was mapped, zeroed page by page on first touch
-/// and unmapped again on every frame: a sixth of costmap fusion's time on
-/// the FITAM chain went to those page faults. The usual real-time Linux
-/// setting: the heap grows to the stage's working set once and stays.
+/// few hundred kilobytes to megabytes) are over glibc's default mmap
+/// threshold at first and, once that adapts, freed at the heap's top past
+/// its trim threshold: either way each frame's buffers came as fresh pages
+/// from the kernel, zeroed page by page on first touch, and went back
+/// after. A sixth of costmap fusion's time on the FITAM chain went to those
+/// page faults. The usual real-time Linux setting: the heap grows to the
+/// stage's working set once and stays.
 fn keep_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {

@@ -344,7 +344,8 @@ impl Default for VertexQueue {
 
 impl VertexQueue {
     const ABSENT: u32 = u32::MAX;
-    /// Marks a place in `far` (vertex counts stay below 2^31).
+    /// Marks a place in `far`: heap and list places stay below it, as
+    /// vertex counts do ([`DStarLite::new`] refuses more).
     const FAR: u32 = 1 << 31;
 
     fn new(vertices: usize) -> Self {
@@ -381,7 +382,8 @@ impl VertexQueue {
                 None if self.far.is_empty() => return None,
                 _ => {
                     // The smallest waiting key and a margin above it: at
-                    // least it joins, so the loop ends.
+                    // least it joins (keys in `far` are finite, see
+                    // `waits`), so the loop ends.
                     let least = self
                         .far
                         .iter()
@@ -438,17 +440,24 @@ impl VertexQueue {
         self.sift_up(self.heap.len() - 1);
     }
 
+    /// Whether a vertex keyed `k` waits outside the heap. Never an
+    /// infinite key (D* Lite queues none: a queued vertex has g != rhs, so
+    /// the smaller is finite), which no finite bound would ever let in.
+    fn waits(&self, k: Key) -> bool {
+        k.0 >= self.bound && k.0.is_finite()
+    }
+
     /// Queues `v` with key `k`, or re-keys it if queued.
     fn set(&mut self, v: usize, k: Key) {
         match self.place[v] {
-            Self::ABSENT if k.0 >= self.bound => {
+            Self::ABSENT if self.waits(k) => {
                 self.place[v] = Self::FAR | self.far.len() as u32;
                 self.far.push((k, v as u32));
             }
             Self::ABSENT => self.heap_push((k, v as u32)),
             p if p & Self::FAR != 0 => {
                 let i = (p & !Self::FAR) as usize;
-                if k.0 >= self.bound {
+                if self.waits(k) {
                     self.far[i].0 = k;
                 } else {
                     self.far_take(i);
@@ -577,7 +586,7 @@ pub struct DStarLite {
 
 impl DStarLite {
     /// A planner over `grid` from `start` to `goal`. Panics on a grid of
-    /// 2^32 - 1 cells or more (the planner's config keeps grids far below).
+    /// 2^31 cells or more (the planner's config keeps grids far below).
     pub fn new(
         grid: CostGrid,
         start: (usize, usize),
@@ -588,7 +597,7 @@ impl DStarLite {
         // The queue names vertices in u32 (WorldPlanner's grids are at most
         // 20,000 x 20,000 cells; g and rhs alone would need 64 GB past this).
         assert!(
-            n < VertexQueue::ABSENT as usize,
+            n < VertexQueue::FAR as usize,
             "a {} x {} grid has more cells than D* Lite's queue can name",
             grid.width,
             grid.height
@@ -1010,8 +1019,14 @@ mod tests {
             let v = (rng.next() * n as f64) as usize;
             let r = rng.next();
             if r < 0.5 {
-                let k1 = (rng.next() * 100.0).floor();
-                let k = Key(k1, (rng.next() * k1).floor());
+                // Now and then an infinite key: it must never wait
+                // outside the heap, where no bound would let it in.
+                let k1 = if rng.next() < 0.02 {
+                    f64::INFINITY
+                } else {
+                    (rng.next() * 100.0).floor()
+                };
+                let k = Key(k1, (rng.next() * k1.min(100.0)).floor());
                 q.set(v, k);
                 model.insert(v, k);
             } else if r < 0.65 {

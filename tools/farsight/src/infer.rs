@@ -97,7 +97,11 @@ fn hip_overlay(
         );
     }
     let mut out = rgb.to_vec();
-    let side = (fh / 2).min(fw / 2).max(16);
+    let side = (fh / 2).min(fw / 2);
+    if side < 16 {
+        // No room for a legible inset: the frame as it is.
+        return Ok(out);
+    }
     let (x0, y0) = (fw - side, fh - side);
     // Darken the inset so the lines read on any frame.
     for y in y0..fh {
@@ -200,14 +204,15 @@ fn far_field_overlay(
             Ok(ensemble_observation(l, radial, members, classes, &cfg)?)
         })
         .collect::<Result<Vec<_>>>()?;
-    // Rows of the colour grid: the radial bins, then the untouched frame.
-    const ROWS: usize = 16;
+    // Rows of the colour grid: the radial bins (3/16 of the frame for
+    // FITAM's three), then the untouched frame.
+    let rows = (radial * 16 / 3).max(radial + 1);
     Ok(farsight_imaging::overlay(
         rgb,
         fw,
         fh,
         slices,
-        ROWS,
+        rows,
         0.75,
         |i| {
             let (row, slice) = (i / slices, i % slices);
@@ -219,42 +224,66 @@ fn far_field_overlay(
     ))
 }
 
-/// Scales each RGB8 overlay into a `width`-wide cell (as tall as the first
-/// overlay's aspect makes it; another aspect is fitted inside, centred, on
-/// white) and lays them out `columns` a row.
-fn contact_sheet(
-    overlays: &[(usize, usize, Vec<u8>)],
-    width: u32,
-    columns: u32,
-) -> Result<(usize, usize, Vec<u8>)> {
-    use fast_image_resize as fir;
-    let (w0, h0, _) = overlays.first().context("no overlay for the sheet")?;
-    let tw = width as usize;
-    let th = ((*h0 as f64) * tw as f64 / (*w0).max(1) as f64)
-        .round()
-        .max(1.0) as usize;
-    let cols = (columns as usize).min(overlays.len());
-    let rows = overlays.len().div_ceil(cols);
-    let (sw, sh) = (cols * tw, rows * th);
-    let mut sheet = vec![255u8; sw * sh * 3];
-    let mut resizer = fir::Resizer::new();
-    let options = fir::ResizeOptions::new()
-        .resize_alg(fir::ResizeAlg::Convolution(fir::FilterType::Lanczos3));
-    for (k, (w, h, rgb)) in overlays.iter().enumerate() {
-        let scale = (tw as f64 / (*w).max(1) as f64).min(th as f64 / (*h).max(1) as f64);
-        let dw = ((*w as f64 * scale).round() as usize).clamp(1, tw);
-        let dh = ((*h as f64 * scale).round() as usize).clamp(1, th);
-        let src = fir::images::ImageRef::new(*w as u32, *h as u32, rgb, fir::PixelType::U8x3)?;
-        let mut dst = fir::images::Image::new(dw as u32, dh as u32, fir::PixelType::U8x3);
-        resizer.resize(&src, &mut dst, &options)?;
-        let x0 = (k % cols) * tw + (tw - dw) / 2;
-        let y0 = (k / cols) * th + (th - dh) / 2;
-        for (y, row) in dst.buffer().chunks_exact(dw * 3).enumerate() {
-            let at = ((y0 + y) * sw + x0) * 3;
-            sheet[at..at + dw * 3].copy_from_slice(row);
+/// The contact sheet (`--sheet`): each overlay scaled into a `width`-wide
+/// cell as it is made (as tall as the first overlay's aspect makes it, at
+/// most four widths; another aspect is fitted inside, centred, on white),
+/// `columns` a row. Only the scaled cells are kept.
+struct ContactSheet {
+    width: usize,
+    columns: usize,
+    cell_height: Option<usize>,
+    cells: Vec<(usize, usize, Vec<u8>)>,
+    resizer: fast_image_resize::Resizer,
+}
+
+impl ContactSheet {
+    fn new(width: u32, columns: u32) -> Self {
+        Self {
+            width: width as usize,
+            columns: columns as usize,
+            cell_height: None,
+            cells: Vec::new(),
+            resizer: fast_image_resize::Resizer::new(),
         }
     }
-    Ok((sw, sh, sheet))
+
+    fn add(&mut self, w: usize, h: usize, rgb: &[u8]) -> Result<()> {
+        use fast_image_resize as fir;
+        let tw = self.width;
+        let th = *self.cell_height.get_or_insert_with(|| {
+            ((h as f64) * tw as f64 / w.max(1) as f64)
+                .round()
+                .clamp(1.0, 4.0 * tw as f64) as usize
+        });
+        let scale = (tw as f64 / w.max(1) as f64).min(th as f64 / h.max(1) as f64);
+        let dw = ((w as f64 * scale).round() as usize).clamp(1, tw);
+        let dh = ((h as f64 * scale).round() as usize).clamp(1, th);
+        let src = fir::images::ImageRef::new(w as u32, h as u32, rgb, fir::PixelType::U8x3)?;
+        let mut dst = fir::images::Image::new(dw as u32, dh as u32, fir::PixelType::U8x3);
+        let options = fir::ResizeOptions::new()
+            .resize_alg(fir::ResizeAlg::Convolution(fir::FilterType::Lanczos3));
+        self.resizer.resize(&src, &mut dst, &options)?;
+        self.cells.push((dw, dh, dst.into_vec()));
+        Ok(())
+    }
+
+    /// The sheet's width, height and pixels (RGB8), `None` without cells.
+    fn finish(&self) -> Option<(usize, usize, Vec<u8>)> {
+        let (tw, th) = (self.width, self.cell_height?);
+        let cols = self.columns.min(self.cells.len());
+        let rows = self.cells.len().div_ceil(cols);
+        let (sw, sh) = (cols * tw, rows * th);
+        let mut sheet = vec![255u8; sw * sh * 3];
+        for (k, (dw, dh, cell)) in self.cells.iter().enumerate() {
+            let x0 = (k % cols) * tw + (tw - dw) / 2;
+            let y0 = (k / cols) * th + (th - dh) / 2;
+            for (y, row) in cell.chunks_exact(dw * 3).enumerate() {
+                let at = ((y0 + y) * sw + x0) * 3;
+                sheet[at..at + dw * 3].copy_from_slice(row);
+            }
+        }
+        Some((sw, sh, sheet))
+    }
 }
 
 fn collect(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
@@ -310,11 +339,26 @@ pub fn run(a: InferArgs) -> Result<()> {
             .expect("a straight drive has a pose at every time")
     });
     let library = match (&past, &a.hip_library) {
-        (Some(_), Some(p)) => Some(
-            farsight_stage::load_config_file::<farsight_subgoal_selection::hip::LibraryFile>(p)
-                .with_context(|| format!("--hip-library {}", p.display()))?
-                .trajectories,
-        ),
+        (Some(_), Some(p)) => {
+            let library =
+                farsight_stage::load_config_file::<farsight_subgoal_selection::hip::LibraryFile>(p)
+                    .with_context(|| format!("--hip-library {}", p.display()))?
+                    .trajectories;
+            let scored = config.outputs.iter().find(|o| {
+                o.kind == farsight_inference::model_config::OutputKind::TrajectoryLogLikelihood
+            });
+            if let Some(o) = scored.filter(|o| o.classes != library.len()) {
+                bail!(
+                    "--hip-library {}: {} trajectories, but the model scores {} ({} output `{}`): use the library it was exported with",
+                    p.display(),
+                    library.len(),
+                    o.classes,
+                    a.model_config.display(),
+                    o.name
+                );
+            }
+            Some(library)
+        }
         (Some(_), None) => bail!(
             "{}: the model takes past positions and scores a trajectory library; give that library with --hip-library",
             a.model_config.display()
@@ -325,7 +369,10 @@ pub fn run(a: InferArgs) -> Result<()> {
     let files = collect(&a.inputs)?;
     std::fs::create_dir_all(&a.out)?;
     let (mut ok, mut failed) = (0usize, 0usize);
-    let mut overlays = Vec::new();
+    let mut sheet = a
+        .sheet
+        .as_ref()
+        .map(|_| ContactSheet::new(a.sheet_width, a.sheet_columns));
     let mut total = Timings::default();
     for (i, file) in files.iter().enumerate() {
         let stem = file
@@ -405,8 +452,8 @@ pub fn run(a: InferArgs) -> Result<()> {
                 rgb
             };
             write_png(&out("overlay"), fw, fh, PixelEncoding::RGB8, &overlay)?;
-            if a.sheet.is_some() {
-                overlays.push((fw, fh, overlay));
+            if let Some(sheet) = &mut sheet {
+                sheet.add(fw, fh, &overlay)?;
             }
             Ok(t)
         })();
@@ -448,10 +495,15 @@ pub fn run(a: InferArgs) -> Result<()> {
     if ok == 0 {
         bail!("no image could be processed");
     }
-    if let Some(path) = &a.sheet {
-        let (w, h, sheet) = contact_sheet(&overlays, a.sheet_width, a.sheet_columns)?;
-        write_png(path, w, h, PixelEncoding::RGB8, &sheet)?;
-        println!("sheet of {} overlays: {}", overlays.len(), path.display());
+    if let (Some(path), Some(sheet)) = (&a.sheet, &sheet) {
+        if let Some((w, h, pixels)) = sheet.finish() {
+            write_png(path, w, h, PixelEncoding::RGB8, &pixels)?;
+            println!(
+                "sheet of {} overlays: {}",
+                sheet.cells.len(),
+                path.display()
+            );
+        }
     }
     Ok(())
 }

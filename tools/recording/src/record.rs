@@ -221,19 +221,25 @@ pub fn record(
             if let (Some(first), Some(h)) = (answered, &mut health) {
                 // What was published before the answer may have come in
                 // after its topic's turn in this pass: one more pass takes
-                // it before the answer is reported. That pass may take an
-                // answer too (the frame's, after a stop that answers no
-                // frame): it counts like one taken in the first.
-                let answer = match take_all(&subs, &mut writer, ack_topic) {
-                    Ok((late, taken)) => {
-                        (0..taken).for_each(|_| h.input());
-                        newest_answer(Some(first), late).unwrap_or(first)
+                // it before the answer is reported. That pass may take a
+                // newer answer (the frame's, after a stop that answers no
+                // frame), which needs a pass after it in turn.
+                let mut answer = first;
+                loop {
+                    match take_all(&subs, &mut writer, ack_topic) {
+                        Ok((late, taken)) => {
+                            (0..taken).for_each(|_| h.input());
+                            match late {
+                                Some(l) if l.frame_seq > answer.frame_seq => answer = l,
+                                _ => break,
+                            }
+                        }
+                        Err(e) => {
+                            failure = Some(e);
+                            return ControlFlow::Break(());
+                        }
                     }
-                    Err(e) => {
-                        failure = Some(e);
-                        return ControlFlow::Break(());
-                    }
-                };
+                }
                 if answer.frame_seq > acked_frame {
                     acked_frame = answer.frame_seq;
                     h.output(answer, WallClock.now_ns());

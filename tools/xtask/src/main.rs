@@ -939,6 +939,11 @@ fn train(args: &[String]) -> Result<()> {
             }
         }
     }
+    if smoke && ship {
+        return Err(
+            "train: --smoke trains on short runs for checking the chain; it does not go with --ship".into(),
+        );
+    }
     let plan = train_plan(smoke);
     let t0 = std::time::Instant::now();
     let step = |n: u32, what: &str| {
