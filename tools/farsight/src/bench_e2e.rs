@@ -291,7 +291,10 @@ fn measure(a: &E2eArgs, prefix: &str) -> Result<Measured> {
                 };
                 ingest_ns.entry(stamp.frame_seq).or_insert(ingest);
             }
-            if k == path.len() - 1 {
+            // A command answering no frame (the servo's stop while its
+            // input is starved, stamped frame 0) is neither the first
+            // answer nor a sign the run goes on.
+            if k == path.len() - 1 && stamp.frame_seq > 0 {
                 last_command = Instant::now();
                 if first_command.is_none() {
                     first_command = Some(Instant::now());
