@@ -223,9 +223,13 @@ pub fn record(
                 // after its topic's turn in this pass: one more pass takes
                 // it before the answer is reported. That pass may take a
                 // newer answer (the frame's, after a stop that answers no
-                // frame), which needs a pass after it in turn.
+                // frame), which needs a pass after it in turn. In lock-step
+                // at most one newer answer can come (the next frame waits
+                // for this report); the cap keeps a recorder given `--ack`
+                // on a graph that is not lock-step from passing forever.
+                const MAX_CATCH_UP_PASSES: usize = 8;
                 let mut answer = first;
-                loop {
+                for _ in 0..MAX_CATCH_UP_PASSES {
                     match take_all(&subs, &mut writer, ack_topic) {
                         Ok((late, taken)) => {
                             (0..taken).for_each(|_| h.input());
