@@ -10,6 +10,7 @@
 //! | `povnav-env-1`..`5` | POVNav section 5.2 | the same fields, start and goal drawn per seed on either side (the paper's 20 random start/goal pairs per environment) |
 //! | `random` | FITAM | land-cover noise: fields, grass, forest with trees, water, rocks, roads; rolling hills; 400 m, goal about 340 m away |
 //! | `random-long` | issue 20 | the same on 1.5 km, goal about 1.84 km away (long range) |
+//! | `random-features` | LRN section IV (training) | a `random` world with LRN's course features across the way at seeded places, sizes and angles: dead-end cups, walls, a river with bridges, bush lines |
 //! | `hip-in-distribution` | HIP section V | a 50 m geofence of trees, shrubs, stones and patches of tall grass; a spawn and a goal 10-25 m apart per seed |
 //! | `hip-novel-wall` | HIP section V | another such geofence with walls, an obstacle no HIP training world has (out of distribution) |
 
@@ -34,7 +35,7 @@ pub struct Scenario {
 
 /// Every named scenario (`random` and `random-long` take their sizes from
 /// [`random_world`]).
-pub const NAMES: [&str; 18] = [
+pub const NAMES: [&str; 19] = [
     "bug-trap",
     "bridge",
     "bush-wall",
@@ -51,6 +52,7 @@ pub const NAMES: [&str; 18] = [
     "povnav-env-5",
     "random",
     "random-long",
+    "random-features",
     "hip-in-distribution",
     "hip-novel-wall",
 ];
@@ -188,6 +190,7 @@ pub fn scenario(name: &str, seed: u64) -> Result<Scenario, UnknownScenario> {
             name: "random-long".into(),
             ..random_world(seed, 1500)
         },
+        "random-features" => random_features_world(seed),
         "hip-in-distribution" => hip_spawn(name, hip_world(1, false), seed),
         "hip-novel-wall" => hip_spawn(name, hip_world(2, true), seed),
         _ => return Err(UnknownScenario(name.into())),
@@ -397,6 +400,132 @@ pub fn random_world(seed: u64, size: usize) -> Scenario {
     }
 }
 
+/// LRN's training worlds (issue 22, item 1): a 400 m [`random_world`]
+/// with the kinds of feature LRN's courses test, at places, sizes and
+/// angles drawn from the seed, so no layout is an evaluated course's:
+/// dead-end cups opening roughly toward the start (bug-trap's kind: 10-25 m
+/// deep, 15-35 m wide), walls 15-50 m long, a meandering river 5-8 m wide
+/// across the whole world, crossed by the roads and one bridge near the
+/// straight line (bridge's kind), and bush lines 3-6 m thick and 20-60 m
+/// long (bush-wall's kind). Each sits within 40 m of the straight line
+/// from start to goal, 15-85% of the way, so the expert's drive meets
+/// them and a camera frame shows where it went round.
+pub fn random_features_world(seed: u64) -> Scenario {
+    let base = random_world(seed, 400);
+    let mut w = base.world;
+    let mut rng = SplitMix64::new(seed ^ 0x1A4E);
+    let (s, g) = ([base.start[0], base.start[1]], base.goal);
+    let route = (g[1] - s[1]).atan2(g[0] - s[0]);
+    let len = (g[0] - s[0]).hypot(g[1] - s[1]);
+    // A point `t` of the way along the route and `v` metres to its left.
+    let at = |t: f64, v: f64| {
+        [
+            s[0] + t * len * route.cos() - v * route.sin(),
+            s[1] + t * len * route.sin() + v * route.cos(),
+        ]
+    };
+    // Local (u forward along `yaw`, v to the left) to world, rounded to a cell.
+    let local = |c: [f64; 2], yaw: f64, u: f64, v: f64| {
+        (
+            (c[0] + u * yaw.cos() - v * yaw.sin()).round() as i64,
+            (c[1] + u * yaw.sin() + v * yaw.cos()).round() as i64,
+        )
+    };
+    // The river first, so walls and bushes may stand on its banks.
+    let river_t = rng.range(0.35, 0.65);
+    let bridge_v = rng.range(-30.0, 30.0);
+    let river_w = rng.range(5.0, 8.0);
+    let (mut v, mut wander) = (-600.0, 0.0f64);
+    while v < 600.0 {
+        wander = (wander + rng.range(-0.3, 0.3)).clamp(-15.0, 15.0);
+        let on_bridge = (v - bridge_v).abs() < 2.5;
+        for k in 0..=(2.0 * river_w) as i64 {
+            let c = at(river_t, v);
+            let across = -river_w / 2.0 + 0.5 * k as f64 + wander;
+            let (x, y) = local(c, route, across, 0.0);
+            // Where a road meets the river it crosses on a bridge.
+            if on_bridge {
+                w.set_cover(x, y, Cover::Road);
+                w.set_obstacle(x, y, Obstacle::None);
+            } else if w.cover(x, y).is_some_and(|c| c != Cover::Road) {
+                w.set_cover(x, y, Cover::Water);
+                w.set_obstacle(x, y, Obstacle::None);
+            }
+        }
+        v += 0.5;
+    }
+    let place = |rng: &mut SplitMix64| {
+        // Kept off the river's 20 m either side, so no feature closes a bridge.
+        let mut t = rng.range(0.15, 0.85);
+        while (t - river_t).abs() * len < 20.0 {
+            t = rng.range(0.15, 0.85);
+        }
+        at(t, rng.range(-40.0, 40.0))
+    };
+    for _ in 0..2 {
+        // A cup whose mouth faces back along the route, give or take 35
+        // degrees: the robot sees into it before it sees its back wall.
+        let c = place(&mut rng);
+        let yaw = route + rng.range(-0.6, 0.6);
+        let (depth, half) = (rng.range(10.0, 25.0), rng.range(7.5, 17.5));
+        let back = depth / 2.0;
+        w.line_obstacle(
+            local(c, yaw, back, -half),
+            local(c, yaw, back, half),
+            Obstacle::Wall,
+        );
+        for side in [-half, half] {
+            w.line_obstacle(
+                local(c, yaw, -back, side),
+                local(c, yaw, back, side),
+                Obstacle::Wall,
+            );
+        }
+    }
+    for _ in 0..3 {
+        let c = place(&mut rng);
+        let yaw = route + std::f64::consts::FRAC_PI_2 + rng.range(-0.5, 0.5);
+        let half = rng.range(7.5, 25.0);
+        w.line_obstacle(
+            local(c, yaw, -half, 0.0),
+            local(c, yaw, half, 0.0),
+            Obstacle::Wall,
+        );
+    }
+    for _ in 0..3 {
+        let c = place(&mut rng);
+        let yaw = route + std::f64::consts::FRAC_PI_2 + rng.range(-0.5, 0.5);
+        let (half, thick) = (rng.range(10.0, 30.0), rng.range(3.0, 6.0));
+        let mut u = -half;
+        while u <= half {
+            let mut across = -thick / 2.0;
+            while across <= thick / 2.0 {
+                let (x, y) = local(c, yaw, u, across);
+                if w.cover(x, y).is_some_and(|c| !matches!(c, Cover::Water)) {
+                    w.set_cover(x, y, Cover::Bushes);
+                    // Half the cells a bush, as bush-wall's band.
+                    let o = if rng.unit() < 0.5 {
+                        Obstacle::Bush
+                    } else {
+                        Obstacle::None
+                    };
+                    w.set_obstacle(x, y, o);
+                }
+                across += 0.5;
+            }
+            u += 0.5;
+        }
+    }
+    for p in [s, g] {
+        clear_around(&mut w, (p[0] as i64, p[1] as i64), 3);
+    }
+    Scenario {
+        name: "random-features".into(),
+        world: w,
+        ..base
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -550,5 +679,50 @@ mod tests {
             .fold(0.0f32, f32::max);
         assert!(steepest < 0.5, "drivable slopes: {steepest} m per 1 m cell");
         assert!(!a.world.lethal(a.start[0] as i64, a.start[1] as i64));
+    }
+
+    #[test]
+    fn feature_worlds_put_lrns_course_features_on_the_way_and_keep_a_way_through() {
+        use crate::robot::RobotLimits;
+        let radius_m = RobotLimits::default().radius_m;
+        let mut layouts = Vec::new();
+        for seed in [101, 102, 103] {
+            let f = scenario("random-features", seed).unwrap();
+            let plain = random_world(seed, 400);
+            assert_eq!((f.start, f.goal), (plain.start, plain.goal));
+            let count = |pick: &dyn Fn(i64, i64) -> bool| {
+                (0..400)
+                    .flat_map(|x| (0..400).map(move |y| (x, y)))
+                    .filter(|&(x, y)| pick(x, y))
+                    .count()
+            };
+            let walls = count(&|x, y| f.world.obstacle(x, y) == Obstacle::Wall);
+            // Two cups (three sides, 10-35 m each) and three walls.
+            assert!(walls > 100, "seed {seed}: {walls} wall cells");
+            assert_eq!(
+                count(&|x, y| plain.world.obstacle(x, y) == Obstacle::Wall),
+                0
+            );
+            let bushes = |s: &Scenario| count(&|x, y| s.world.obstacle(x, y) == Obstacle::Bush);
+            assert!(bushes(&f) > 100, "seed {seed}: {} bush cells", bushes(&f));
+            let water = |s: &Scenario| count(&|x, y| s.world.cover(x, y) == Some(Cover::Water));
+            // A river 5-8 m wide across 400 m and more.
+            assert!(water(&f) > water(&plain) + 1500, "seed {seed}");
+            // The river has a way over it, and the expert's disc a way
+            // from start to goal.
+            let p = crate::expert::shortest_path_m(
+                &f.world,
+                [f.start[0], f.start[1]],
+                f.goal,
+                radius_m,
+                0.5,
+            );
+            let straight = (f.goal[0] - f.start[0]).hypot(f.goal[1] - f.start[1]);
+            assert!(p.is_some_and(|m| m >= straight), "seed {seed}: {p:?}");
+            assert!(!f.world.lethal(f.start[0] as i64, f.start[1] as i64));
+            layouts.push(walls);
+        }
+        layouts.dedup();
+        assert_eq!(layouts.len(), 3, "each seed its own layout: {layouts:?}");
     }
 }
