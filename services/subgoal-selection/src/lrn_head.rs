@@ -21,6 +21,24 @@ pub struct LrnHeadConfig {
     pub straight_within_m: f64,
     /// The "goal heuristic" baseline: ignore the bin scores.
     pub goal_heuristic: bool,
+    /// What the head does when no observed bin has any score.
+    pub no_hotspot: NoHotspot,
+}
+
+/// What LRN's head does when no observed bin has any score (a threshold
+/// above everything the model gives, a view with nothing affordable).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum NoHotspot {
+    /// No heading: the stage reports DEGRADED and sends nothing, so the
+    /// servo stops once its subgoal is stale.
+    #[default]
+    Stop,
+    /// Head for the goal, as LRN's robot did with nothing affordable
+    /// (section V-B: at h_thresh 1.0 "the robot switches between heading
+    /// directly towards the goal and a random hotspot that appear
+    /// infrequently"). The goal bearing also becomes the previous choice.
+    Goal,
 }
 
 impl LrnHeadConfig {
@@ -33,6 +51,7 @@ impl LrnHeadConfig {
             shrink_within_m: 30.0,
             straight_within_m: 12.0,
             goal_heuristic: false,
+            no_hotspot: NoHotspot::Stop,
         }
     }
 
@@ -44,6 +63,7 @@ impl LrnHeadConfig {
             shrink_within_m: 0.0,
             straight_within_m: 75.0,
             goal_heuristic: false,
+            no_hotspot: NoHotspot::Stop,
         }
     }
 }
@@ -100,6 +120,7 @@ fn gaussian(x: f64, mu: f64, sigma: f64) -> f64 {
 pub struct LrnHead {
     previous_rad: Option<f64>,
     yaw_rad: Option<f64>,
+    fell_back: bool,
 }
 
 impl LrnHead {
@@ -116,8 +137,15 @@ impl LrnHead {
         self.yaw_rad = Some(yaw_rad);
     }
 
+    /// Whether the last [`Self::select`] found no observed bin with any
+    /// score and headed for the goal ([`NoHotspot::Goal`]).
+    pub fn fell_back(&self) -> bool {
+        self.fell_back
+    }
+
     /// The heading to take. `centers_rad[i]` is bin i's bearing; unobserved
-    /// bins cannot be chosen. `None` when no observed bin has any score.
+    /// bins cannot be chosen. When no observed bin has any score: `None`,
+    /// or the goal's bearing with [`NoHotspot::Goal`].
     pub fn select(
         &mut self,
         cfg: &LrnHeadConfig,
@@ -127,6 +155,7 @@ impl LrnHead {
         goal_bearing_rad: f64,
         goal_distance_m: f64,
     ) -> Option<f64> {
+        self.fell_back = false;
         if goal_distance_m <= cfg.straight_within_m {
             self.previous_rad = Some(wrap(goal_bearing_rad));
             return self.previous_rad;
@@ -152,7 +181,11 @@ impl LrnHead {
                 best = Some((centers_rad[i], v));
             }
         }
-        let choice = best.map(|(c, _)| c);
+        let mut choice = best.map(|(c, _)| c);
+        if choice.is_none() && cfg.no_hotspot == NoHotspot::Goal {
+            choice = Some(wrap(goal_bearing_rad));
+            self.fell_back = true;
+        }
         if choice.is_some() {
             self.previous_rad = choice;
         }
@@ -194,6 +227,38 @@ mod tests {
             )
             .unwrap();
         assert!((h - c[4]).abs() < 1e-12);
+    }
+
+    #[test]
+    fn with_nothing_affordable_the_head_stops_or_heads_for_the_goal_as_configured() {
+        let c = centers();
+        let none = [0.0; 8];
+        let goal = 1.0; // rad, left of ahead
+        let mut head = LrnHead::default();
+        let stop = LrnHeadConfig::spot();
+        assert_eq!(head.select(&stop, &none, &[true; 8], &c, goal, 100.0), None);
+        assert!(!head.fell_back());
+        let to_goal = LrnHeadConfig {
+            no_hotspot: NoHotspot::Goal,
+            ..stop
+        };
+        let h = head.select(&to_goal, &none, &[true; 8], &c, goal, 100.0);
+        assert_eq!(h, Some(goal));
+        assert!(head.fell_back());
+        // The goal became the previous choice: a hotspot that then appears
+        // on the far side from it is damped by sigma_p as any switch is.
+        let mut one = [0.0; 8];
+        one[5] = 0.2; // +67.5 deg, near the goal
+        let h = head
+            .select(&to_goal, &one, &[true; 8], &c, goal, 100.0)
+            .unwrap();
+        assert!((h - c[5]).abs() < 1e-12);
+        assert!(!head.fell_back(), "a hotspot: no fallback");
+        // Unobserved bins with scores are still nothing affordable.
+        assert_eq!(
+            head.select(&to_goal, &[0.9; 8], &[false; 8], &c, goal, 100.0),
+            Some(goal)
+        );
     }
 
     #[test]

@@ -654,7 +654,14 @@ impl Heading {
             alignment_phi_rad: f32::NAN,
         };
         step.out.send(cx.port.subgoal, subgoal);
-        step.health.set(HealthState::OK, "");
+        if self.head.fell_back() {
+            step.health.set(
+                HealthState::DEGRADED,
+                "no affordable observed bin: heading for the goal",
+            );
+        } else {
+            step.health.set(HealthState::OK, "");
+        }
         step.health.output(stamp, step.wall_ns);
     }
 }
