@@ -75,7 +75,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 /// The benchmark's rows: name and graph file (relative to the repository).
-pub const METHODS: [(&str, &str); 18] = [
+pub const METHODS: [(&str, &str); 19] = [
     ("lrn_learned", "graphs/sim/lrn.toml"),
     ("goal_heuristic", "graphs/sim/lrn-goal-heuristic.toml"),
     ("dstar_no_far_field", "graphs/sim/dstar-lite.toml"),
@@ -85,6 +85,7 @@ pub const METHODS: [(&str, &str); 18] = [
     ("povnav_lrn", "graphs/sim/povnav-lrn.toml"),
     ("lrn_local_planner", "graphs/sim/lrn-dstar.toml"),
     ("lrn_myopic", "graphs/sim/lrn-myopic.toml"),
+    ("lrn_myopic_360", "graphs/sim/lrn-myopic-360.toml"),
     (
         "goal_heuristic_myopic",
         "graphs/sim/goal-heuristic-myopic.toml",
@@ -661,7 +662,7 @@ mod tests {
             let (_, g) = METHODS.iter().find(|(n, _)| *n == m).unwrap();
             Graph::load(&crate::graph::repo_file(g).unwrap()).unwrap()
         };
-        let pairs: [(&str, &str, &[&str]); 8] = [
+        let pairs: [(&str, &str, &[&str]); 9] = [
             (
                 // FITAM's row against its "no far field" baseline: the far
                 // field (ground-truth bins) and fusion answering it. The
@@ -706,6 +707,27 @@ mod tests {
                 "goal_heuristic_myopic",
                 "lrn_myopic",
                 &["node lrn-head: method"],
+            ),
+            (
+                // Spot's coverage: the same head and stack on bins from
+                // four cameras all round instead of the front one.
+                "lrn_myopic",
+                "lrn_myopic_360",
+                &[
+                    "external camera/left/image only in the second",
+                    "external camera/left/info only in the second",
+                    "external camera/rear/image only in the second",
+                    "external camera/rear/info only in the second",
+                    "external camera/right/image only in the second",
+                    "external camera/right/info only in the second",
+                    "node bin-projection: cameras",
+                    "node bin-projection: join_cameras_by_frame",
+                    "node inference only in the first",
+                    "node inference-front only in the second",
+                    "node inference-left only in the second",
+                    "node inference-rear only in the second",
+                    "node inference-right only in the second",
+                ],
             ),
             (
                 // Traversability + Depth: what feeds the bins (the HSV
