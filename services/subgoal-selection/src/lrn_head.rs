@@ -25,8 +25,12 @@ pub struct LrnHeadConfig {
     pub no_hotspot: NoHotspot,
 }
 
-/// What LRN's head does when no observed bin has any score (a threshold
-/// above everything the model gives, a view with nothing affordable).
+/// What LRN's head does when bins were observed but none has any score (a
+/// threshold above everything the model gives, a view with nothing
+/// affordable). Scores are EMA-filtered, so once a bin has scored it keeps
+/// a (fading) score until it is next unobserved: this applies only while
+/// nothing observed has passed the threshold. With no bin observed at all
+/// (no camera frame, the goal's side unseen) the head never heads anywhere.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum NoHotspot {
@@ -38,6 +42,7 @@ pub enum NoHotspot {
     /// (section V-B: at h_thresh 1.0 "the robot switches between heading
     /// directly towards the goal and a random hotspot that appear
     /// infrequently"). The goal bearing also becomes the previous choice.
+    /// The stage reports DEGRADED while it does.
     Goal,
 }
 
@@ -144,8 +149,9 @@ impl LrnHead {
     }
 
     /// The heading to take. `centers_rad[i]` is bin i's bearing; unobserved
-    /// bins cannot be chosen. When no observed bin has any score: `None`,
-    /// or the goal's bearing with [`NoHotspot::Goal`].
+    /// bins cannot be chosen. When bins were observed but none has any
+    /// score: `None`, or the goal's bearing with [`NoHotspot::Goal`]. With
+    /// no bin observed: `None` (nothing seen is not "nothing affordable").
     pub fn select(
         &mut self,
         cfg: &LrnHeadConfig,
@@ -182,7 +188,8 @@ impl LrnHead {
             }
         }
         let mut choice = best.map(|(c, _)| c);
-        if choice.is_none() && cfg.no_hotspot == NoHotspot::Goal {
+        let seen = observed.iter().take(scores.len()).any(|&o| o);
+        if choice.is_none() && seen && cfg.no_hotspot == NoHotspot::Goal {
             choice = Some(wrap(goal_bearing_rad));
             self.fell_back = true;
         }
@@ -245,20 +252,31 @@ mod tests {
         let h = head.select(&to_goal, &none, &[true; 8], &c, goal, 100.0);
         assert_eq!(h, Some(goal));
         assert!(head.fell_back());
-        // The goal became the previous choice: a hotspot that then appears
-        // on the far side from it is damped by sigma_p as any switch is.
-        let mut one = [0.0; 8];
-        one[5] = 0.2; // +67.5 deg, near the goal
+        // Nothing observed is not nothing affordable: no heading, even
+        // where unobserved bins carry scores.
+        let mut blind = LrnHead::default();
+        assert_eq!(
+            blind.select(&to_goal, &[0.9; 8], &[false; 8], &c, goal, 100.0),
+            None
+        );
+        assert!(!blind.fell_back());
+        // The goal became the previous choice, which sigma_p then favours:
+        // with the goal now straight ahead and two hotspots either side of
+        // it, a fresh head takes the stronger one (-67.5 deg), the head
+        // that fell back the one near its last heading (+67.5 deg, 10
+        // degrees from the old goal at 57.3).
+        let mut two = [0.0; 8];
+        two[2] = 0.55;
+        two[5] = 0.5;
+        let fresh = LrnHead::default()
+            .select(&to_goal, &two, &[true; 8], &c, 0.0, 100.0)
+            .unwrap();
+        assert!((fresh - c[2]).abs() < 1e-12);
         let h = head
-            .select(&to_goal, &one, &[true; 8], &c, goal, 100.0)
+            .select(&to_goal, &two, &[true; 8], &c, 0.0, 100.0)
             .unwrap();
         assert!((h - c[5]).abs() < 1e-12);
         assert!(!head.fell_back(), "a hotspot: no fallback");
-        // Unobserved bins with scores are still nothing affordable.
-        assert_eq!(
-            head.select(&to_goal, &[0.9; 8], &[false; 8], &c, goal, 100.0),
-            Some(goal)
-        );
     }
 
     #[test]
