@@ -18,6 +18,9 @@
 //!   labelled from the true world (FITAM's "GT labels" row);
 //! - `fitam_learned` (`graphs/sim/fitam.toml`): the far field from the
 //!   shipped FITAM model through inference and bin projection;
+//! - `fitam_learned_entropy` (`graphs/sim/fitam-entropy.toml`): the same
+//!   with the paper's variance rule (entropy) for the reference code's
+//!   1 - max p;
 //! - `povnav_oracle` (`graphs/sim/povnav-oracle.toml`): POVNav on the class
 //!   image -> the POVNav servo law;
 //! - `povnav_lrn` (`graphs/sim/povnav-lrn.toml`): LRN's heading (the
@@ -25,7 +28,12 @@
 //!   inference instances on one camera;
 //! - `lrn_local_planner` (`graphs/sim/lrn-dstar.toml`): LRN's heading as
 //!   the goal of a D* Lite local planner on the fused near field (the
-//!   composition LRN's paper runs).
+//!   composition LRN's paper runs);
+//! - `lrn_myopic`, `goal_heuristic_myopic`, `traversability_myopic`
+//!   (`graphs/sim/lrn-myopic.toml` and beside it): LRN section IV's three
+//!   heads over Spot's memoryless 16 m local stack; `lrn_myopic_360`
+//!   (`graphs/sim/lrn-myopic-360.toml`) the first on four cameras all round;
+//! - the POVNav Jackal rows and HIP's rows: see their graphs.
 //!
 //! `--list` prints the rows and their graph files (the process tests take
 //! the list from there). `--graphs` runs other graph files instead (a row per file, named by its
@@ -75,12 +83,13 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 /// The benchmark's rows: name and graph file (relative to the repository).
-pub const METHODS: [(&str, &str); 19] = [
+pub const METHODS: [(&str, &str); 20] = [
     ("lrn_learned", "graphs/sim/lrn.toml"),
     ("goal_heuristic", "graphs/sim/lrn-goal-heuristic.toml"),
     ("dstar_no_far_field", "graphs/sim/dstar-lite.toml"),
     ("fitam_gt", "graphs/sim/fitam-gt.toml"),
     ("fitam_learned", "graphs/sim/fitam.toml"),
+    ("fitam_learned_entropy", "graphs/sim/fitam-entropy.toml"),
     ("povnav_oracle", "graphs/sim/povnav-oracle.toml"),
     ("povnav_lrn", "graphs/sim/povnav-lrn.toml"),
     ("lrn_local_planner", "graphs/sim/lrn-dstar.toml"),
@@ -662,7 +671,7 @@ mod tests {
             let (_, g) = METHODS.iter().find(|(n, _)| *n == m).unwrap();
             Graph::load(&crate::graph::repo_file(g).unwrap()).unwrap()
         };
-        let pairs: [(&str, &str, &[&str]); 9] = [
+        let pairs: [(&str, &str, &[&str]); 10] = [
             (
                 // FITAM's row against its "no far field" baseline: the far
                 // field (ground-truth bins) and fusion answering it. The
@@ -693,6 +702,13 @@ mod tests {
                     "node bin-projection only in the second",
                     "node inference only in the second",
                 ],
+            ),
+            (
+                // FITAM's two variance rules: the reference code's 1 - max p
+                // against the paper's entropy, on the same far field.
+                "fitam_learned",
+                "fitam_learned_entropy",
+                &["node bin-projection: fitam.variance"],
             ),
             (
                 // LRN's goal heuristic against its learned head: the head's
