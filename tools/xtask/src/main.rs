@@ -841,6 +841,7 @@ fn train_plan(smoke: bool) -> TrainPlan {
         heldout: vec![
             ("random", 201, 240),
             ("random", 202, 240),
+            ("random-features", 211, 150),
             ("road-forest", 60, 150),
             ("bush-wall", 60, 150),
         ],
