@@ -1437,6 +1437,48 @@ mod tests {
         }
     }
 
+    #[test]
+    fn lrn_with_no_scored_bin_stops_or_heads_for_the_goal_as_configured_never_on_stale_bins() {
+        let lrn = |extra: &str| cases(extra).into_iter().find(|c| c.name == "lrn").unwrap();
+        // Every bin observed, none scored; the goal 20 m ahead, 20 m left.
+        let cold = |stamp: Stamp| {
+            let mut b = bins(stamp);
+            b.scores = FixedVec::from_slice(&[0.0; 8]).unwrap();
+            b
+        };
+        let left_goal = NavGoal {
+            y_m: 20.0,
+            ..goal()
+        };
+        let run = |c: &Case, bins_t: u64| {
+            let mut h = c.stage();
+            h.put("state/pose", pose(at(90, 10 * S)));
+            h.put("nav/goal", left_goal);
+            h.put("bins/angular", cold(at(7, bins_t)));
+            let out = h.step(h.wake_on("bins/angular"), 1000 * S);
+            let reason = h.health.report().reason.as_str().to_string();
+            (subgoals(&out), h.health.state(), reason)
+        };
+        let (sent, state, reason) = run(&lrn(""), 10 * S);
+        assert!(sent.is_empty(), "the default stops: {sent:?}");
+        assert_eq!(state, HealthState::DEGRADED);
+        assert_eq!(reason, "no affordable observed bin");
+        let to_goal = lrn("[lrn]\nno_hotspot = \"goal\"");
+        let (sent, state, reason) = run(&to_goal, 10 * S);
+        assert_eq!(sent.len(), 1, "{sent:?}");
+        assert!(
+            (sent[0].heading_rad - std::f32::consts::FRAC_PI_4).abs() < 1e-6,
+            "toward the goal: {sent:?}"
+        );
+        assert_eq!(state, HealthState::DEGRADED);
+        assert_eq!(reason, "no affordable observed bin: heading for the goal");
+        // Bins 2 s older than the pose: nothing, fallback or not.
+        let (sent, state, reason) = run(&to_goal, 8 * S);
+        assert!(sent.is_empty(), "stale bins: {sent:?}");
+        assert_eq!(state, HealthState::DEGRADED);
+        assert!(reason.starts_with("bins/angular is 2.00 s old"), "{reason}");
+    }
+
     /// A guide's subgoal of frame `seq`: 10 m ahead and 10 m left.
     fn guide(seq: u64) -> Subgoal {
         Subgoal {
