@@ -48,6 +48,7 @@ use farsight_costmap_fusion::map::FusionMap;
 use farsight_costmap_fusion::swath::{for_each_swath_cell, PolarGeometry};
 use farsight_interfaces::msg::{PolarCell, Stamp};
 use farsight_subgoal_selection::dstar_lite::{astar, CostGrid, DStarLite};
+use std::time::Instant;
 
 /// Version of this module's rules (the agent's sensing, travel and failure
 /// rules, the problem sampler, the cost metric and the paired statistics),
@@ -183,7 +184,7 @@ pub fn true_cost_grid(world: &World) -> CostGrid {
 /// The cheapest cost per metre a cell of `world` can have, in truth or in
 /// the map (far-field classes, unknown): the planners' heuristic scale, so
 /// that it stays admissible.
-fn cheapest_cost_s_per_m(world: &World, cfg: &ProtocolConfig) -> f64 {
+pub fn cheapest_cost_s_per_m(world: &World, cfg: &ProtocolConfig) -> f64 {
     let mut cheapest = cfg.far_field.unknown_cost_s_per_m as f64;
     for speed in &cfg.label_rules.class_speeds_mps {
         cheapest = cheapest.min(1.0 / speed);
@@ -274,6 +275,23 @@ impl Touched {
     }
 }
 
+/// One iteration's plan, as [`sense_plan_act_observed`] hands it out:
+/// what the planner was given and what repairing it cost.
+pub struct PlanStep<'a> {
+    /// 1 for the first iteration (D* Lite's first search), then 2, 3, ...
+    pub iteration: usize,
+    /// The planner after its search: its grid is the map the agent plans on.
+    pub planner: &'a DStarLite,
+    /// The agent's cell.
+    pub at: (usize, usize),
+    /// Cells whose planning cost changed since the last plan.
+    pub changed_cells: usize,
+    /// D* Lite's update of those cells and its search, wall time.
+    pub plan_s: f64,
+    /// Vertices the search expanded.
+    pub expanded: usize,
+}
+
 /// Runs one row of the protocol on one problem. [`Row::LearnedFarField`]
 /// observes through `learned`, and is refused without one; the other rows
 /// ignore it. Fails only when the far-field source does, or its
@@ -284,6 +302,20 @@ pub fn sense_plan_act(
     row: Row,
     cfg: &ProtocolConfig,
     learned: Option<&mut dyn FarFieldSource>,
+) -> anyhow::Result<TrialResult> {
+    sense_plan_act_observed(world, problem, row, cfg, learned, &mut |_| {})
+}
+
+/// [`sense_plan_act`], handing each iteration's plan to `on_plan` (after
+/// the search, before the agent moves): `farsight bench planning` times
+/// D* Lite's repairs on the updates this loop really makes.
+pub fn sense_plan_act_observed(
+    world: &World,
+    problem: &Problem,
+    row: Row,
+    cfg: &ProtocolConfig,
+    learned: Option<&mut dyn FarFieldSource>,
+    on_plan: &mut dyn FnMut(&PlanStep),
 ) -> anyhow::Result<TrialResult> {
     let (w, h, res) = (world.width, world.height, world.resolution_m);
     // The map's window is the whole world: its cell (gx, gy) is the world's.
@@ -383,8 +415,18 @@ pub fn sense_plan_act(
         // D* Lite's order: the start moves first, so that the key offset
         // km accounts for the move when the changed cells are queued.
         planner.move_start(at);
+        let (t, expanded_before) = (Instant::now(), planner.expanded);
         planner.set_costs(updates.iter().copied());
-        if planner.compute().is_none() {
+        let reachable = planner.compute().is_some();
+        on_plan(&PlanStep {
+            iteration: result.iterations,
+            planner: &planner,
+            at,
+            changed_cells: updates.len(),
+            plan_s: t.elapsed().as_secs_f64(),
+            expanded: planner.expanded - expanded_before,
+        });
+        if !reachable {
             break;
         }
         let path = planner.path();
