@@ -603,6 +603,43 @@ mod tests {
     }
 
     #[test]
+    fn each_iteration_hands_out_its_plan_and_the_trial_is_unchanged() {
+        let (w, p) = road_beside_forest();
+        let cfg = ProtocolConfig::default();
+        let mut steps = Vec::new();
+        let observed =
+            sense_plan_act_observed(&w, &p, Row::GroundTruthFarField, &cfg, None, &mut |s| {
+                steps.push((
+                    s.iteration,
+                    s.at,
+                    s.changed_cells,
+                    s.expanded,
+                    s.planner.grid().width,
+                    s.plan_s,
+                ))
+            })
+            .unwrap();
+        let plain = sense_plan_act(&w, &p, Row::GroundTruthFarField, &cfg, None).unwrap();
+        assert_eq!(observed, plain, "watching the plans changes nothing");
+        assert!(plain.reached);
+        let iterations: Vec<usize> = steps.iter().map(|s| s.0).collect();
+        assert_eq!(iterations, (1..=plain.iterations).collect::<Vec<_>>());
+        // The agent plans where it stands: each plan's cell is on the track.
+        for s in &steps {
+            assert!(plain.track.contains(&s.1), "{:?} off the track", s.1);
+            assert_eq!(s.4, w.width, "the planner's grid is the world");
+            assert!(s.5 >= 0.0);
+        }
+        assert_eq!(steps[0].1, p.start);
+        // The first plan takes in the whole first view and searches the
+        // grid; a later one repairs: the road seen again changes little.
+        assert!(steps[0].2 > 1000, "first view: {} cells", steps[0].2);
+        assert!(steps[0].3 > 0);
+        let later = steps[1..].iter().map(|s| s.2).max().unwrap();
+        assert!(later < steps[0].2, "later {later} vs first {}", steps[0].2);
+    }
+
+    #[test]
     fn the_learned_row_fuses_its_sources_observation_each_iteration() {
         let (w, p) = road_beside_forest();
         let cfg = ProtocolConfig::default();
