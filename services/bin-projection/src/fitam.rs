@@ -50,6 +50,15 @@ pub struct FitamBinsConfig {
     /// Speed of each class (m/s); its cost is the inverse.
     pub class_speeds_mps: Vec<f64>,
     pub variance: VarianceRule,
+    /// Radial bins that start at or beyond this range (m) go out as "no
+    /// measurement", whatever the model says: for a model that tells the
+    /// classes apart near by but is at chance further out. Every
+    /// observation, however unsure, takes a cell's variance under the
+    /// filter's threshold (R = 1 - max p is at most 2/3 with three
+    /// classes), so a guess at chance is planned on as if measured; a bin
+    /// left unmeasured plans at the unknown cost instead. Unset (the
+    /// default, and FITAM's): every radial bin.
+    pub max_range_m: Option<f64>,
 }
 
 impl Default for FitamBinsConfig {
@@ -59,7 +68,16 @@ impl Default for FitamBinsConfig {
             range_edges_m: vec![25.0, 50.0, 75.0, 100.0],
             class_speeds_mps: vec![0.5, 2.25, 4.25],
             variance: VarianceRule::MaxProbability,
+            max_range_m: None,
         }
+    }
+}
+
+impl FitamBinsConfig {
+    /// Whether radial bin `r` is measured (see [`Self::max_range_m`]).
+    pub fn measures_radial_bin(&self, r: usize) -> bool {
+        self.max_range_m
+            .is_none_or(|m| self.range_edges_m.get(r).is_some_and(|&lo| lo < m))
     }
 }
 
@@ -79,6 +97,11 @@ impl Validate for FitamBinsConfig {
             "class_speeds_mps",
             &self.class_speeds_mps,
             Range::above_to(0.0, 100.0).unit("m/s"),
+        )
+        .optional(
+            "max_range_m",
+            self.max_range_m,
+            Range::above_to(0.0, 10_000.0).unit("m"),
         );
     }
 
@@ -97,6 +120,16 @@ impl Validate for FitamBinsConfig {
             "fitam.class_speeds_mps",
             format!("{:?}", self.class_speeds_mps),
             "two or more speeds",
+        )?;
+        ConfigError::check(
+            self.max_range_m.is_none_or(|m| m > self.range_edges_m[0]),
+            "fitam.max_range_m",
+            self.max_range_m
+                .map_or_else(String::new, |m| format!("{m} m")),
+            &format!(
+                "beyond the first radial edge ({} m): nearer, nothing is measured",
+                self.range_edges_m[0]
+            ),
         )
     }
 }
@@ -247,6 +280,9 @@ pub fn polar_observation(
             cfg,
         )?;
         for (r, c) in cells.into_iter().enumerate() {
+            if !cfg.measures_radial_bin(r) {
+                continue;
+            }
             let slot = &mut out[h * radial + r];
             if c.variance < slot.variance {
                 *slot = c;
@@ -344,6 +380,51 @@ mod tests {
             polar_observation(&[0.0; 12], [1, 2, 2, 3], &[Some(0)], &cfg),
             Err(FitamError::Radial { got: 2, want: 3 })
         ));
+    }
+
+    #[test]
+    fn radial_bins_from_max_range_on_go_out_unmeasured() {
+        let bins = [Some(3)];
+        // One slice, three radial bins, two members, sure of class 2.
+        let logits: Vec<f32> = (0..3 * 2).flat_map(|_| [0.0, 0.0, 9.0]).collect();
+        let measured = |max_range_m: Option<f64>| -> Vec<bool> {
+            let cfg = FitamBinsConfig {
+                heading_bins: 8,
+                max_range_m,
+                ..Default::default()
+            };
+            let cells = polar_observation(&logits, [1, 3, 2, 3], &bins, &cfg).unwrap();
+            (0..3)
+                .map(|r| {
+                    let c = cells[3 * 3 + r];
+                    assert!(c.cost_s_per_m.is_nan() == c.variance.is_infinite());
+                    !c.cost_s_per_m.is_nan()
+                })
+                .collect()
+        };
+        // Edges 25, 50, 75, 100 m: a bin is measured if it starts nearer.
+        assert_eq!(measured(None), [true, true, true]);
+        assert_eq!(measured(Some(50.0)), [true, false, false]);
+        assert_eq!(measured(Some(50.1)), [true, true, false]);
+        assert_eq!(measured(Some(1000.0)), [true, true, true]);
+    }
+
+    #[test]
+    fn a_max_range_that_would_measure_nothing_is_refused_by_name() {
+        for (toml, why) in [
+            ("max_range_m = 25.0", "first radial edge"),
+            ("max_range_m = 10.0", "first radial edge"),
+            ("max_range_m = -5.0", "max_range_m"),
+            ("max_range_m = nan", "max_range_m"),
+        ] {
+            let e = farsight_stage::parse_config::<FitamBinsConfig>(toml, "fitam")
+                .expect_err(toml)
+                .to_string();
+            assert!(e.contains("max_range_m") && e.contains(why), "{toml}: {e}");
+        }
+        let ok: FitamBinsConfig =
+            farsight_stage::parse_config("max_range_m = 50.0", "fitam").unwrap();
+        assert_eq!(ok.max_range_m, Some(50.0));
     }
 
     #[test]

@@ -25,6 +25,7 @@
 //! range_edges_m = [25.0, 50.0, 75.0, 100.0]
 //! class_speeds_mps = [0.5, 2.25, 4.25]
 //! variance = "max_probability"   # R = 1 - max p (reference code), or "entropy" (paper)
+//! # max_range_m = 50.0           # unset: every radial bin; set: bins from here out unmeasured
 //! ```
 
 use crate::fitam::FitamBinsConfig;

@@ -21,6 +21,10 @@
 //! - `fitam_learned_entropy` (`graphs/sim/fitam-entropy.toml`): the same
 //!   with the paper's variance rule (entropy) for the reference code's
 //!   1 - max p;
+//! - `fitam_learned_near_bins` (`graphs/sim/fitam-near-bins.toml`): the
+//!   same far field measured only in its 25-50 m bin (bin projection's
+//!   `fitam.max_range_m = 50`), where the shipped model is better than
+//!   chance;
 //! - `povnav_oracle` (`graphs/sim/povnav-oracle.toml`): POVNav on the class
 //!   image -> the POVNav servo law;
 //! - `povnav_lrn` (`graphs/sim/povnav-lrn.toml`): LRN's heading (the
@@ -83,13 +87,14 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 /// The benchmark's rows: name and graph file (relative to the repository).
-pub const METHODS: [(&str, &str); 20] = [
+pub const METHODS: [(&str, &str); 21] = [
     ("lrn_learned", "graphs/sim/lrn.toml"),
     ("goal_heuristic", "graphs/sim/lrn-goal-heuristic.toml"),
     ("dstar_no_far_field", "graphs/sim/dstar-lite.toml"),
     ("fitam_gt", "graphs/sim/fitam-gt.toml"),
     ("fitam_learned", "graphs/sim/fitam.toml"),
     ("fitam_learned_entropy", "graphs/sim/fitam-entropy.toml"),
+    ("fitam_learned_near_bins", "graphs/sim/fitam-near-bins.toml"),
     ("povnav_oracle", "graphs/sim/povnav-oracle.toml"),
     ("povnav_lrn", "graphs/sim/povnav-lrn.toml"),
     ("lrn_local_planner", "graphs/sim/lrn-dstar.toml"),
@@ -671,7 +676,7 @@ mod tests {
             let (_, g) = METHODS.iter().find(|(n, _)| *n == m).unwrap();
             Graph::load(&crate::graph::repo_file(g).unwrap()).unwrap()
         };
-        let pairs: [(&str, &str, &[&str]); 10] = [
+        let pairs: [(&str, &str, &[&str]); 11] = [
             (
                 // FITAM's row against its "no far field" baseline: the far
                 // field (ground-truth bins) and fusion answering it. The
@@ -709,6 +714,13 @@ mod tests {
                 "fitam_learned",
                 "fitam_learned_entropy",
                 &["node bin-projection: fitam.variance"],
+            ),
+            (
+                // The far field cut at 50 m: the bins beyond go out
+                // unmeasured, nothing else changes.
+                "fitam_learned",
+                "fitam_learned_near_bins",
+                &["node bin-projection: fitam.max_range_m"],
             ),
             (
                 // LRN's goal heuristic against its learned head: the head's
