@@ -56,8 +56,10 @@ pub struct FitamBinsConfig {
     /// observation, however unsure, takes a cell's variance under the
     /// filter's threshold (R = 1 - max p is at most 2/3 with three
     /// classes), so a guess at chance is planned on as if measured; a bin
-    /// left unmeasured plans at the unknown cost instead. Unset (the
-    /// default, and FITAM's): every radial bin.
+    /// left unmeasured plans at the unknown cost instead. A bin that
+    /// starts nearer is measured whole, even if it reaches past this
+    /// range (60 keeps the 50-75 m bin). Unset (the default, and FITAM's):
+    /// every radial bin.
     pub max_range_m: Option<f64>,
 }
 
@@ -414,8 +416,9 @@ mod tests {
         for (toml, why) in [
             ("max_range_m = 25.0", "first radial edge"),
             ("max_range_m = 10.0", "first radial edge"),
-            ("max_range_m = -5.0", "max_range_m"),
+            ("max_range_m = -5.0", "0 < x <= 10000 m"),
             ("max_range_m = nan", "max_range_m"),
+            ("max_range_m = 20000.0", "0 < x <= 10000 m"),
         ] {
             let e = farsight_stage::parse_config::<FitamBinsConfig>(toml, "fitam")
                 .expect_err(toml)
