@@ -424,6 +424,11 @@ impl FusionStage {
                 for (layer, port) in self.port.layers {
                     let (header, data) = self.map.export(stamp, layer, far_field);
                     step.out.send(port, Costmap { header, data });
+                    if layer == CostmapLayer::FUSED {
+                        // The planner waits on the fused map alone: it goes
+                        // out before the two layers are built.
+                        step.out.flush();
+                    }
                 }
                 match &freshness {
                     Freshness::Fresh => step.health.set(HealthState::OK, ""),
@@ -583,6 +588,9 @@ mod tests {
             topics,
             ["costmap/fused", "costmap/far_field", "costmap/near_field"]
         );
+        // The planner's input goes out before the layers nobody waits on
+        // are built.
+        assert_eq!(h.flushed_mid_step, ["costmap/fused"]);
         // The oldest required capture (the near field's); the frame number
         // of the first declared input (the pose).
         for (_, m) in &out {

@@ -57,7 +57,7 @@ pub use camera_models::CameraModels;
 pub use inputs::{Freshness, InputId, Need, StageInputs};
 pub use io::{DeclaresTopics, Io};
 pub use ranges::{Range, Ranges};
-pub use runtime::{Inbox, Outbox, Ports, Stage, StageEnv, StageKind, Step, Wake};
+pub use runtime::{Inbox, Outbox, Ports, Sink, Stage, StageEnv, StageKind, Step, Wake};
 
 use farsight_interfaces::fixed::FixedStr;
 use farsight_interfaces::msg::{HealthState, StageHealth, Stamp};

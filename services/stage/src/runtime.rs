@@ -17,8 +17,10 @@ use farsight_interfaces::message::Message;
 use farsight_interfaces::transport::any::{AnyPublisher, AnySubscriber};
 use farsight_interfaces::transport::ipc::{self, Bus};
 use serde::de::DeserializeOwned;
+use std::cell::RefCell;
 use std::ops::ControlFlow;
 use std::path::PathBuf;
+use std::rc::Rc;
 use std::time::Duration;
 
 /// One input of a stage: a topic, and whether a message on it runs the step
@@ -158,15 +160,82 @@ impl Inbox {
     }
 }
 
-/// What a step sends: (output index, message), in order.
-#[derive(Debug, Default)]
+/// What a step sends: (output index, message), in order. They go out
+/// after the step, or when the step calls [`Outbox::flush`].
+#[derive(Default)]
 pub struct Outbox {
     pub messages: Vec<(usize, Message)>,
+    sink: Option<Box<dyn Sink>>,
+    failures: Vec<String>,
+}
+
+/// Where an [`Outbox`] with a sink publishes: the process runtime's ports.
+pub trait Sink {
+    /// Publishes `msg` on output `port`; an error names the topic.
+    fn publish(&mut self, port: usize, msg: Message) -> Result<(), String>;
+}
+
+impl std::fmt::Debug for Outbox {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Outbox")
+            .field("messages", &self.messages)
+            .field("sink", &self.sink.is_some())
+            .field("failures", &self.failures)
+            .finish()
+    }
 }
 
 impl Outbox {
+    /// An outbox whose [`Outbox::flush`] publishes through `sink`.
+    pub fn with_sink(sink: Box<dyn Sink>) -> Self {
+        Self {
+            sink: Some(sink),
+            ..Self::default()
+        }
+    }
+
     pub fn send(&mut self, port: usize, msg: impl Into<Message>) {
         self.messages.push((port, msg.into()));
+    }
+
+    /// Publishes what was sent so far now, in order, without waiting for
+    /// the step to end: a stage whose first output is on the latency path
+    /// (fusion's fused map) flushes it before building outputs nobody
+    /// waits on. Without a sink (the in-process executor, a test harness)
+    /// the messages stay queued and go out after the step, in the same
+    /// order, so a flush never changes what is sent.
+    pub fn flush(&mut self) {
+        let Some(sink) = self.sink.as_mut() else {
+            return;
+        };
+        for (port, msg) in self.messages.drain(..) {
+            if let Err(e) = sink.publish(port, msg) {
+                self.failures.push(e);
+            }
+        }
+    }
+
+    /// Why messages could not be published since the last call.
+    pub fn take_failures(&mut self) -> Vec<String> {
+        std::mem::take(&mut self.failures)
+    }
+}
+
+/// The process runtime's sink: one iceoryx2 publisher per output port.
+struct Publishers {
+    topics: Vec<String>,
+    publishers: Vec<AnyPublisher>,
+}
+
+impl Sink for Publishers {
+    fn publish(&mut self, port: usize, msg: Message) -> Result<(), String> {
+        let Some(p) = self.publishers.get_mut(port) else {
+            return Err(format!(
+                "step sent on output {port}, which it did not declare"
+            ));
+        };
+        p.publish_message(msg)
+            .map_err(|e| format!("{}: {e}", self.topics[port]))
     }
 }
 
@@ -236,11 +305,15 @@ pub fn run_process<S: StageKind>() -> anyhow::Result<()> {
         .iter()
         .map(|p| AnySubscriber::open(&bus, &p.topic))
         .collect::<Result<Vec<_>, _>>()?;
-    let mut publishers = ports
+    let publishers = ports
         .outputs
         .iter()
         .map(|p| AnyPublisher::open(&bus, &p.topic, p.max_slice_bytes))
         .collect::<Result<Vec<_>, _>>()?;
+    let mut out = Outbox::with_sink(Box::new(Publishers {
+        topics: ports.outputs.iter().map(|p| p.topic.clone()).collect(),
+        publishers,
+    }));
     let mut health = Health::new(&bus, &env.instance, ports.health_rate_hz)?;
     announce_ready(&env.instance);
 
@@ -249,7 +322,6 @@ pub fn run_process<S: StageKind>() -> anyhow::Result<()> {
         .collect();
     let listeners: Vec<_> = waking.iter().map(|&i| subscribers[i].listener()).collect();
     let mut inbox = Inbox::new(ports.inputs.len());
-    let mut out = Outbox::default();
     let mut exit = None;
     ipc::wait_loop(&listeners, ports.tick, |wake| {
         let wake = match wake {
@@ -276,7 +348,7 @@ pub fn run_process<S: StageKind>() -> anyhow::Result<()> {
         stage.step(&mut step);
         let (now_ns, step_exit) = (step.now_ns, step.exit.take());
         inbox.clear();
-        publish(&ports, &mut publishers, &mut out, &mut health);
+        publish(&mut out, &mut health);
         let skipped = subscribers.iter().map(|s| s.skips().skipped).sum();
         health.set_skipped(skipped);
         health.tick(now_ns);
@@ -289,7 +361,7 @@ pub fn run_process<S: StageKind>() -> anyhow::Result<()> {
         }
     })?;
     stage.stop(&mut out);
-    publish(&ports, &mut publishers, &mut out, &mut health);
+    publish(&mut out, &mut health);
     health.stopping(WallClock.now_ns());
     match exit {
         Some(Err(why)) => Err(anyhow::anyhow!(why)),
@@ -297,15 +369,11 @@ pub fn run_process<S: StageKind>() -> anyhow::Result<()> {
     }
 }
 
-fn publish(ports: &Ports, publishers: &mut [AnyPublisher], out: &mut Outbox, health: &mut Health) {
-    for (port, msg) in out.messages.drain(..) {
-        let Some(p) = publishers.get_mut(port) else {
-            tracing::error!("step sent on output {port}, which it did not declare");
-            continue;
-        };
-        if let Err(e) = p.publish_message(msg) {
-            health.dropped(&format_args!("{}: {e}", ports.outputs[port].topic));
-        }
+/// Publishes what the step left queued, and counts what could not go out.
+fn publish(out: &mut Outbox, health: &mut Health) {
+    out.flush();
+    for why in out.take_failures() {
+        health.dropped(&why);
     }
 }
 
@@ -346,19 +414,36 @@ pub struct Harness<S: Stage> {
     pub health: HealthReport,
     /// What the last step asked of [`Step::exit`].
     pub exit: Option<Result<(), String>>,
+    /// The topics the last step published before it ended
+    /// ([`Outbox::flush`]), in order.
+    pub flushed_mid_step: Vec<String>,
     inbox: Inbox,
     out: Outbox,
+    flushed: Rc<RefCell<Vec<(usize, Message)>>>,
+}
+
+/// The harness's sink: keeps what a step flushes, to hand back in order.
+struct Kept(Rc<RefCell<Vec<(usize, Message)>>>);
+
+impl Sink for Kept {
+    fn publish(&mut self, port: usize, msg: Message) -> Result<(), String> {
+        self.0.borrow_mut().push((port, msg));
+        Ok(())
+    }
 }
 
 impl<S: Stage> Harness<S> {
     pub fn new(stage: S) -> Self {
         let inputs = stage.ports().inputs.len();
+        let flushed = Rc::new(RefCell::new(Vec::new()));
         Self {
             stage,
             health: HealthReport::new("test"),
             exit: None,
+            flushed_mid_step: Vec::new(),
             inbox: Inbox::new(inputs),
-            out: Outbox::default(),
+            out: Outbox::with_sink(Box::new(Kept(flushed.clone()))),
+            flushed,
         }
     }
 
@@ -397,6 +482,10 @@ impl<S: Stage> Harness<S> {
         self.stage.step(&mut step);
         self.exit = step.exit.take();
         self.inbox.clear();
+        let outputs = &self.stage.ports().outputs;
+        self.flushed_mid_step = (self.flushed.borrow().iter())
+            .map(|(i, _)| outputs[*i].topic.clone())
+            .collect();
         self.drain()
     }
 
@@ -406,11 +495,13 @@ impl<S: Stage> Harness<S> {
         self.drain()
     }
 
+    /// Everything sent, flushed or not, in the order sent.
     fn drain(&mut self) -> Vec<(String, Message)> {
         let outputs = &self.stage.ports().outputs;
-        self.out
-            .messages
-            .drain(..)
+        let flushed = std::mem::take(&mut *self.flushed.borrow_mut());
+        flushed
+            .into_iter()
+            .chain(self.out.messages.drain(..))
             .map(|(i, m)| (outputs[i].topic.clone(), m))
             .collect()
     }
@@ -419,7 +510,7 @@ impl<S: Stage> Harness<S> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use farsight_interfaces::msg::{NavGoal, Pose};
+    use farsight_interfaces::msg::{NavGoal, Pose, Stamp};
 
     #[test]
     fn inbox_keeps_the_newest_and_counts_what_it_replaced() {
@@ -444,6 +535,49 @@ mod tests {
         inbox.put(1, pose(4));
         inbox.clear();
         assert!(!inbox.has(1));
+    }
+
+    #[test]
+    fn a_flush_publishes_what_was_sent_so_far_in_order_and_keeps_the_rest() {
+        struct Log(Rc<RefCell<Vec<(usize, u64)>>>);
+        impl Sink for Log {
+            fn publish(&mut self, port: usize, msg: Message) -> Result<(), String> {
+                let Message::Pose(p) = msg else {
+                    return Err(format!("output {port}: not a pose"));
+                };
+                self.0.borrow_mut().push((port, p.stamp.frame_seq));
+                Ok(())
+            }
+        }
+        let pose = |seq| {
+            Message::Pose(Pose {
+                stamp: Stamp {
+                    frame_seq: seq,
+                    ..Default::default()
+                },
+                ..Default::default()
+            })
+        };
+        let log = Rc::new(RefCell::new(Vec::new()));
+        let mut out = Outbox::with_sink(Box::new(Log(log.clone())));
+        out.send(1, pose(1));
+        out.send(0, pose(2));
+        out.flush();
+        assert_eq!(*log.borrow(), [(1, 1), (0, 2)]);
+        assert!(out.messages.is_empty());
+        out.send(0, pose(3));
+        assert_eq!(log.borrow().len(), 2, "nothing goes out before a flush");
+        out.send(2, Message::Goal(NavGoal::default()));
+        out.flush();
+        assert_eq!(*log.borrow(), [(1, 1), (0, 2), (0, 3)]);
+        assert_eq!(out.take_failures(), ["output 2: not a pose"]);
+        assert!(out.take_failures().is_empty());
+
+        // Without a sink a flush keeps every message for after the step.
+        let mut queued = Outbox::default();
+        queued.send(0, pose(4));
+        queued.flush();
+        assert_eq!(queued.messages.len(), 1);
     }
 
     #[test]
