@@ -25,6 +25,9 @@
 //!   same far field measured only in its 25-50 m bin (bin projection's
 //!   `fitam.max_range_m = 50`), where the shipped model is better than
 //!   chance;
+//! - `fitam_learned_expected_cost` (`graphs/sim/fitam-expected-cost.toml`):
+//!   the same far field measured as the expected cost over the class
+//!   probabilities instead of the most likely class's (not the paper's);
 //! - `povnav_oracle` (`graphs/sim/povnav-oracle.toml`): POVNav on the class
 //!   image -> the POVNav servo law;
 //! - `povnav_lrn` (`graphs/sim/povnav-lrn.toml`): LRN's heading (the
@@ -87,7 +90,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 /// The benchmark's rows: name and graph file (relative to the repository).
-pub const METHODS: [(&str, &str); 21] = [
+pub const METHODS: [(&str, &str); 22] = [
     ("lrn_learned", "graphs/sim/lrn.toml"),
     ("goal_heuristic", "graphs/sim/lrn-goal-heuristic.toml"),
     ("dstar_no_far_field", "graphs/sim/dstar-lite.toml"),
@@ -95,6 +98,10 @@ pub const METHODS: [(&str, &str); 21] = [
     ("fitam_learned", "graphs/sim/fitam.toml"),
     ("fitam_learned_entropy", "graphs/sim/fitam-entropy.toml"),
     ("fitam_learned_near_bins", "graphs/sim/fitam-near-bins.toml"),
+    (
+        "fitam_learned_expected_cost",
+        "graphs/sim/fitam-expected-cost.toml",
+    ),
     ("povnav_oracle", "graphs/sim/povnav-oracle.toml"),
     ("povnav_lrn", "graphs/sim/povnav-lrn.toml"),
     ("lrn_local_planner", "graphs/sim/lrn-dstar.toml"),
@@ -676,7 +683,7 @@ mod tests {
             let (_, g) = METHODS.iter().find(|(n, _)| *n == m).unwrap();
             Graph::load(&crate::graph::repo_file(g).unwrap()).unwrap()
         };
-        let pairs: [(&str, &str, &[&str]); 11] = [
+        let pairs: [(&str, &str, &[&str]); 12] = [
             (
                 // FITAM's row against its "no far field" baseline: the far
                 // field (ground-truth bins) and fusion answering it. The
@@ -721,6 +728,13 @@ mod tests {
                 "fitam_learned",
                 "fitam_learned_near_bins",
                 &["node bin-projection: fitam.max_range_m"],
+            ),
+            (
+                // The measurement: the expected cost over the classes for
+                // the most likely class's, nothing else changes.
+                "fitam_learned",
+                "fitam_learned_expected_cost",
+                &["node bin-projection: fitam.measurement"],
             ),
             (
                 // LRN's goal heuristic against its learned head: the head's
