@@ -907,6 +907,26 @@ def evaluate(a):
         plt.close(fig)
         lines.append("\nFITAM's paper (real robot, 43-64 m bin, 15 members): summer test .94-.97, "
                      "fall .58-.63, winter .67-.74 (DinoV2 / ResNet-18 / no pre-training).\n")
+        # What the planner is handed: a swath's measured cost, by its true
+        # class, for FITAM's rule (the most likely class's cost) and for bin
+        # projection's `measurement = "expected_cost"` (sum of p / speed).
+        cost = 1 / np.asarray(d["options"]["fitam"]["class_speeds_mps"], dtype=float)
+        lines += ["Measured cost (s/m) by true class, mean over held-out swaths: most likely class / expected cost", "",
+                  "| radial bin | " + " | ".join(f"true {c:.3f}" for c in cost) + " | mean abs error |",
+                  "|---|" + "---|" * (len(cost) + 1)]
+        for r in range(R):
+            y = d["fit_y"][:, :, r]
+            sel = y >= 0
+            yr, pr = y[sel], p[:, :, r][sel]
+            z_argmax, z_expected = cost[pr.argmax(-1)], pr @ cost
+            cells = [f"{z_argmax[yr == c].mean():.2f} / {z_expected[yr == c].mean():.2f}"
+                     if (yr == c).any() else "-" for c in range(C)]
+            mae = f"{np.abs(z_argmax - cost[yr]).mean():.2f} / {np.abs(z_expected - cost[yr]).mean():.2f}"
+            report["fitam"][r]["measured_cost"] = dict(
+                most_likely=[float(z_argmax[yr == c].mean()) if (yr == c).any() else None for c in range(C)],
+                expected=[float(z_expected[yr == c].mean()) if (yr == c).any() else None for c in range(C)])
+            lines.append(f"| {edges[r]:.0f}-{edges[r + 1]:.0f} m | " + " | ".join(cells) + f" | {mae} |")
+        lines.append("")
     text = "\n".join(lines)
     print(text)
     with open(os.path.join(a.out, "metrics.md"), "w") as f:
