@@ -51,7 +51,7 @@ pub enum MeasurementRule {
     /// The expected cost, sum of p_k / speed_k: the estimate of least
     /// squared error. A slow swath the model half-believes fast is not
     /// planned on as a road: with FITAM's classes (2.0, 0.444 and
-    /// 0.235 s/m) p = (0.3, 0.2, 0.5) gives 0.80 s/m where argmax gives
+    /// 0.235 s/m) p = (0.3, 0.2, 0.5) gives 0.81 s/m where argmax gives
     /// 0.235. Not the paper's; a deviation to measure (issue 22).
     ExpectedCost,
 }
