@@ -25,6 +25,8 @@
 //! range_edges_m = [25.0, 50.0, 75.0, 100.0]
 //! class_speeds_mps = [0.5, 2.25, 4.25]
 //! variance = "max_probability"   # R = 1 - max p (reference code), or "entropy" (paper)
+//! measurement = "most_likely_class"  # z = the argmax class's cost (FITAM), or
+//!                                # "expected_cost": sum of p / speed (not the paper's)
 //! # max_range_m = 50.0           # unset: every radial bin; set: bins from here out unmeasured
 //! ```
 
