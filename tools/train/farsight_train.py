@@ -882,6 +882,8 @@ def evaluate(a):
                   "| radial bin | swaths | per class | class-weighted ROC AUC | accuracy |", "|---|---|---|---|---|"]
         fig, axes = plt.subplots(1, R, figsize=(4 * R, 4), squeeze=False)
         report["fitam"] = []
+        cost = 1 / np.asarray(d["options"]["fitam"]["class_speeds_mps"], dtype=float)
+        cost_rows = []
         for r in range(R):
             y = d["fit_y"][:, :, r]
             sel = y >= 0
@@ -896,7 +898,18 @@ def evaluate(a):
             wauc = float(np.average(aucs, weights=support)) if aucs else float("nan")
             acc = float((pr.argmax(-1) == yr).mean()) if len(yr) else float("nan")
             counts = [int((yr == c).sum()) for c in range(C)]
-            report["fitam"].append(dict(radial_bin=r, swaths=int(len(yr)), counts=counts, auc=wauc, accuracy=acc))
+            # What the planner is handed: a swath's measured cost by its true
+            # class, for FITAM's rule (the most likely class's cost) and for
+            # bin projection's `measurement = "expected_cost"` (sum of p / speed).
+            measured = dict(most_likely=cost[pr.argmax(-1)], expected=pr @ cost)
+            means = {k: [float(z[yr == c].mean()) if (yr == c).any() else None for c in range(C)]
+                     for k, z in measured.items()}
+            cells = [f"{m:.2f} / {e:.2f}" if m is not None else "-"
+                     for m, e in zip(means["most_likely"], means["expected"])]
+            mae = " / ".join(f"{np.abs(z - cost[yr]).mean():.2f}" for z in measured.values())
+            cost_rows.append(f"| {edges[r]:.0f}-{edges[r + 1]:.0f} m | " + " | ".join(cells) + f" | {mae} |")
+            report["fitam"].append(dict(radial_bin=r, swaths=int(len(yr)), counts=counts, auc=wauc, accuracy=acc,
+                                        measured_cost=means))
             lines.append(f"| {edges[r]:.0f}-{edges[r + 1]:.0f} m | {len(yr)} | {counts} | {wauc:.2f} | {acc:.2f} |")
             axes[0][r].plot([0, 1], [0, 1], "k:", lw=0.5)
             axes[0][r].set(title=f"FITAM {edges[r]:.0f}-{edges[r + 1]:.0f} m (AUC {wauc:.2f})",
@@ -907,26 +920,9 @@ def evaluate(a):
         plt.close(fig)
         lines.append("\nFITAM's paper (real robot, 43-64 m bin, 15 members): summer test .94-.97, "
                      "fall .58-.63, winter .67-.74 (DinoV2 / ResNet-18 / no pre-training).\n")
-        # What the planner is handed: a swath's measured cost, by its true
-        # class, for FITAM's rule (the most likely class's cost) and for bin
-        # projection's `measurement = "expected_cost"` (sum of p / speed).
-        cost = 1 / np.asarray(d["options"]["fitam"]["class_speeds_mps"], dtype=float)
         lines += ["Measured cost (s/m) by true class, mean over held-out swaths: most likely class / expected cost", "",
                   "| radial bin | " + " | ".join(f"true {c:.3f}" for c in cost) + " | mean abs error |",
-                  "|---|" + "---|" * (len(cost) + 1)]
-        for r in range(R):
-            y = d["fit_y"][:, :, r]
-            sel = y >= 0
-            yr, pr = y[sel], p[:, :, r][sel]
-            z_argmax, z_expected = cost[pr.argmax(-1)], pr @ cost
-            cells = [f"{z_argmax[yr == c].mean():.2f} / {z_expected[yr == c].mean():.2f}"
-                     if (yr == c).any() else "-" for c in range(C)]
-            mae = f"{np.abs(z_argmax - cost[yr]).mean():.2f} / {np.abs(z_expected - cost[yr]).mean():.2f}"
-            report["fitam"][r]["measured_cost"] = dict(
-                most_likely=[float(z_argmax[yr == c].mean()) if (yr == c).any() else None for c in range(C)],
-                expected=[float(z_expected[yr == c].mean()) if (yr == c).any() else None for c in range(C)])
-            lines.append(f"| {edges[r]:.0f}-{edges[r + 1]:.0f} m | " + " | ".join(cells) + f" | {mae} |")
-        lines.append("")
+                  "|---|" + "---|" * (len(cost) + 1)] + cost_rows + [""]
     text = "\n".join(lines)
     print(text)
     with open(os.path.join(a.out, "metrics.md"), "w") as f:
