@@ -163,9 +163,14 @@ pub struct PlanningArgs {
 
 #[derive(Args)]
 pub struct NavArgs {
-    /// Trials (seeds 1..=N) per scenario and method.
+    /// Trials (seeds 1..=N, or from --first-seed) per scenario and method.
     #[arg(long, default_value_t = 3)]
     pub trials: usize,
+    /// The first trial's seed: spawns apart from an evaluation's 1..=N, to
+    /// tune on without touching the trials that judge. Recorded in the
+    /// protocol.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    pub first_seed: u64,
     #[arg(long, value_delimiter = ',', default_values_t = ["bug-trap".to_string(), "bridge".to_string(), "bush-wall".to_string(), "road-forest".to_string(), "obstacle-field-1".to_string(), "obstacle-field-3".to_string()])]
     pub scenarios: Vec<String>,
     /// Methods to run (default: all).

@@ -264,6 +264,7 @@ fn protocol(a: &NavArgs, rows: &[(String, String, PathBuf)]) -> Result<Protocol>
         versions: Versions::current(),
         scenarios: a.scenarios.clone(),
         trials: a.trials,
+        first_seed: a.first_seed,
         time_limit_x: a.time_limit_x,
         max_time_s: a.max_time_s,
         intervention_rule: a.intervention_rule.name().into(),

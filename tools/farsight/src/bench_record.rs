@@ -152,8 +152,13 @@ fn collect_strings<'a>(v: &'a toml::Value, out: &mut Vec<&'a str>) {
 pub struct Protocol {
     pub versions: Versions,
     pub scenarios: Vec<String>,
-    /// Seeds 1..=trials per scenario and method.
+    /// Seeds first_seed..first_seed + trials per scenario and method.
     pub trials: usize,
+    /// The first trial's seed: 1 unless spawns apart from an evaluation's
+    /// were asked for (to tune on). Left out of the JSON at 1, so the
+    /// hashes of protocols recorded before it existed stand.
+    #[serde(default = "first_seed_one", skip_serializing_if = "is_first_seed_one")]
+    pub first_seed: u64,
     /// A trial's limit is this many times the expert's time...
     pub time_limit_x: f64,
     /// ...and at most this (s), if given.
@@ -177,6 +182,14 @@ pub struct Protocol {
     #[serde(default = "true_cost")]
     pub near_field: String,
     pub methods: Vec<MethodGraph>,
+}
+
+fn first_seed_one() -> u64 {
+    1
+}
+
+fn is_first_seed_one(seed: &u64) -> bool {
+    *seed == 1
 }
 
 fn true_cost() -> String {
@@ -253,6 +266,7 @@ impl Decided for Protocol {
             ),
             ("protocol.scenarios", format!("{:?}", self.scenarios)),
             ("protocol.trials", self.trials.to_string()),
+            ("protocol.first_seed", self.first_seed.to_string()),
             (
                 "protocol.time_limit_x / max_time_s",
                 format!("{} / {:?}", self.time_limit_x, self.max_time_s),
@@ -271,12 +285,12 @@ impl Decided for Protocol {
         ]
     }
 
-    /// Per scenario, per method, seeds 1..=trials.
+    /// Per scenario, per method, `trials` seeds from `first_seed`.
     fn trial_list(&self) -> Vec<TrialKey> {
         let mut out = Vec::new();
         for s in &self.scenarios {
             for m in &self.methods {
-                for seed in 1..=self.trials as u64 {
+                for seed in self.first_seed..self.first_seed + self.trials as u64 {
                     out.push(TrialKey {
                         scenario: s.clone(),
                         method: m.name.clone(),
@@ -597,6 +611,13 @@ pub fn header(f: &ResultsFile) -> String {
     if p.near_field != true_cost() {
         cap += &format!(", {} near field", p.near_field);
     }
+    if p.first_seed != 1 {
+        cap += &format!(
+            ", seeds {}-{}",
+            p.first_seed,
+            p.first_seed + p.trials as u64 - 1
+        );
+    }
     if p.pose_noise_m > 0.0 || p.yaw_noise_deg > 0.0 {
         cap += &format!(
             ", pose noise {} m / {} deg",
@@ -730,6 +751,7 @@ mod tests {
             versions: Versions::current(),
             scenarios: vec!["bug-trap".into(), "bridge".into()],
             trials: 3,
+            first_seed: 1,
             time_limit_x: 3.0,
             max_time_s: None,
             intervention_rule: "carry-back".into(),
@@ -984,6 +1006,32 @@ mod tests {
     }
 
     #[test]
+    fn first_seed_moves_the_trial_list_and_is_left_out_of_the_json_at_one() {
+        let p = protocol();
+        let seeds = |p: &Protocol| -> Vec<u64> {
+            p.trial_list()
+                .iter()
+                .filter(|k| k.scenario == "bug-trap" && k.method == "a")
+                .map(|k| k.seed)
+                .collect()
+        };
+        assert_eq!(seeds(&p), [1, 2, 3]);
+        let tuning = Protocol {
+            first_seed: 301,
+            ..p.clone()
+        };
+        assert_eq!(seeds(&tuning), [301, 302, 303]);
+        // Protocols recorded before the field existed hash as they did.
+        let json = serde_json::to_string(&p).unwrap();
+        assert!(!json.contains("first_seed"), "{json}");
+        assert!(serde_json::to_string(&tuning)
+            .unwrap()
+            .contains("\"first_seed\":301"));
+        let back: Protocol = serde_json::from_str(&json).unwrap();
+        assert_eq!(back.first_seed, 1);
+    }
+
+    #[test]
     fn the_protocol_hash_changes_with_every_parameter() {
         let p = protocol();
         let h = p.hash();
@@ -992,6 +1040,10 @@ mod tests {
         let changed = [
             Protocol {
                 trials: 4,
+                ..p.clone()
+            },
+            Protocol {
+                first_seed: 301,
                 ..p.clone()
             },
             Protocol {
