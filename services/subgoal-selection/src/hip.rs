@@ -105,7 +105,7 @@ impl Validate for HipPlannerConfig {
             .key(
                 "region_offset_m",
                 self.region_offset_m,
-                Range::above_to(0.0, 100.0).unit("m"),
+                Range::between(0.0, 100.0).unit("m"),
             )
             .key(
                 "region_width_m",
@@ -129,10 +129,10 @@ impl Validate for HipPlannerConfig {
     fn check_rules(&self) -> Result<(), ConfigError> {
         ConfigError::check(
             self.region_length_m <= 2.0 * self.region_offset_m,
-            "hip.region_length_m (with hip.region_offset_m)",
+            "hip.region_length_m",
             self.region_length_m,
             &format!(
-                "at most twice hip.region_offset_m ({} m): the region, centred that far toward the goal, must start at or ahead of the robot",
+                "at most twice hip.region_offset_m ({} m), so the region starts at or ahead of the robot",
                 self.region_offset_m
             ),
         )

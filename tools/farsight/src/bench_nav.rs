@@ -334,7 +334,7 @@ pub fn run(a: NavArgs) -> Result<()> {
     );
     anyhow::ensure!(
         a.first_seed.checked_add(a.trials as u64).is_some(),
-        "--first-seed {} with --trials {}: the seeds would run past {}",
+        "--first-seed {} with --trials {}: the last seed is past {}",
         a.first_seed,
         a.trials,
         u64::MAX
@@ -892,11 +892,5 @@ mod tests {
         let a = Cli::parse_from(["x", "--jobs", "0"]).nav;
         let e = run(a).unwrap_err().to_string();
         assert!(e.starts_with("--jobs 0:"), "{e}");
-        let a = Cli::parse_from(["x", "--trials", "0"]).nav;
-        let e = run(a).unwrap_err().to_string();
-        assert!(e.starts_with("--trials 0:"), "{e}");
-        let a = Cli::parse_from(["x", "--first-seed", &u64::MAX.to_string(), "--trials", "1"]).nav;
-        let e = run(a).unwrap_err().to_string();
-        assert!(e.starts_with("--first-seed 18446744073709551615"), "{e}");
     }
 }
