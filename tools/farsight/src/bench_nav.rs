@@ -327,18 +327,6 @@ pub fn run(a: NavArgs) -> Result<()> {
         }
         return Ok(());
     }
-    anyhow::ensure!(
-        a.trials >= 1,
-        "--trials {}: at least one trial per cell",
-        a.trials
-    );
-    anyhow::ensure!(
-        a.first_seed.checked_add(a.trials as u64).is_some(),
-        "--first-seed {} with --trials {}: the last seed is past {}",
-        a.first_seed,
-        a.trials,
-        u64::MAX
-    );
     let rule = TimeLimitRule {
         factor: a.time_limit_x,
         cap_s: a.max_time_s,
