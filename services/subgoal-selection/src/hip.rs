@@ -5,12 +5,8 @@
 //! `L(tau) = C_directive(tau) + (1 - phi) C_learned(tau) + phi sum_i C_costmap(tau_i)`
 //!
 //! - `C_directive = delta` unless the trajectory ends inside the goal region:
-//!   a rectangle 2 m wide whose centre axis points at the goal, "offset
-//!   towards d by 3m" (section III). The paper gives no length; it must
-//!   reach back within a Husky's 2 s of travel (at most 2 m at its 1 m/s),
-//!   or no trajectory could ever end in it and the directive would direct
-//!   nothing. So the offset places the rectangle's centre and
-//!   `region_length_m` (5 m: 0.5-5.5 m toward the goal) is ours;
+//!   a rectangle 2 m wide whose centre axis points at the goal, starting 3 m
+//!   toward it (the paper's region goal);
 //! - `C_learned = -log q(tau | o)` from a learned density model when one is
 //!   configured (0 otherwise, which leaves the hybrid with its geometric and
 //!   directive terms);
@@ -56,18 +52,9 @@ pub struct HipPlannerConfig {
     pub alpha: f64,
     /// Directive penalty for missing the goal region.
     pub delta: f64,
-    /// The goal region: how far toward the goal its centre is (the
-    /// paper's 3 m), its width across that line (the paper's 2 m) and its
-    /// length along it, which the paper does not give. 5 m was chosen on
-    /// spawns 301-400 of hip-in-distribution, apart from the 300 that
-    /// judge (README, HIP's protocol): 2, 4, 5 and 6 m (regions from 2, 1,
-    /// 0.5 and 0 m) took the Geometric Costmap component to 15, 18, 23 and
-    /// 19 of 98 spawns reached, against 9 for a region from 3 m on (the
-    /// reading before), which the library's trajectories (ending 0.2-3.6 m
-    /// out) cannot reach when the goal is over 30 degrees to a side.
+    /// The goal region: how far toward the goal it starts, and its width.
     pub region_offset_m: f64,
     pub region_width_m: f64,
-    pub region_length_m: f64,
     /// The robot's footprint: no trajectory point may bring a disc this
     /// wide over a lethal cell.
     pub robot_radius_m: f64,
@@ -81,7 +68,6 @@ impl Default for HipPlannerConfig {
             delta: 100.0,
             region_offset_m: 3.0,
             region_width_m: 2.0,
-            region_length_m: 5.0,
             robot_radius_m: 0.4,
         }
     }
@@ -111,11 +97,6 @@ impl Validate for HipPlannerConfig {
                 Range::between(0.0, 100.0).unit("m"),
             )
             .key(
-                "region_length_m",
-                self.region_length_m,
-                Range::between(0.0, 200.0).unit("m"),
-            )
-            .key(
                 "robot_radius_m",
                 self.robot_radius_m,
                 Range::between(0.0, 10.0).unit("m"),
@@ -125,7 +106,7 @@ impl Validate for HipPlannerConfig {
 
 /// The directive cost of a trajectory ending at `end` for a goal at `goal`
 /// (both robot frame): 0 inside the region, `delta` outside. A goal closer
-/// than the region's near edge moves that edge to the goal.
+/// than the offset moves the region's start to the goal.
 pub fn directive_cost(end: [f64; 2], goal: [f64; 2], cfg: &HipPlannerConfig) -> f64 {
     let d = goal[0].hypot(goal[1]);
     if d < 1e-9 {
@@ -134,10 +115,8 @@ pub fn directive_cost(end: [f64; 2], goal: [f64; 2], cfg: &HipPlannerConfig) -> 
     let (ux, uy) = (goal[0] / d, goal[1] / d);
     let along = end[0] * ux + end[1] * uy;
     let across = -end[0] * uy + end[1] * ux;
-    let near_m = (cfg.region_offset_m - cfg.region_length_m / 2.0).min(d);
-    let far_m = cfg.region_offset_m + cfg.region_length_m / 2.0;
     let inside =
-        along >= near_m - 1e-9 && along <= far_m + 1e-9 && across.abs() <= cfg.region_width_m / 2.0;
+        along >= cfg.region_offset_m.min(d) - 1e-9 && across.abs() <= cfg.region_width_m / 2.0;
     if inside {
         0.0
     } else {
@@ -513,32 +492,20 @@ mod tests {
     #[test]
     fn directive_region_by_hand() {
         let cfg = HipPlannerConfig::default();
-        // Goal 10 m to the left (+y): the region is x in [-1, 1], y in
-        // [0.5, 5.5] (centred 3 m out, 5 m long).
+        // Goal 10 m to the left (+y): the region is x in [-1, 1], y >= 3.
         assert_eq!(directive_cost([0.5, 4.0], [0.0, 10.0], &cfg), 0.0);
-        assert_eq!(
-            directive_cost([0.0, 1.0], [0.0, 10.0], &cfg),
-            0.0,
-            "within a Husky's reach"
-        );
         assert_eq!(
             directive_cost([1.5, 4.0], [0.0, 10.0], &cfg),
             100.0,
             "too far to the side"
         );
         assert_eq!(
-            directive_cost([0.0, 0.3], [0.0, 10.0], &cfg),
+            directive_cost([0.0, 2.0], [0.0, 10.0], &cfg),
             100.0,
-            "short of the near edge"
+            "short of the offset"
         );
-        assert_eq!(
-            directive_cost([0.0, 6.0], [0.0, 10.0], &cfg),
-            100.0,
-            "past the far edge"
-        );
-        // A goal 0.3 m ahead: its region starts at the goal.
-        assert_eq!(directive_cost([0.4, 0.0], [0.3, 0.0], &cfg), 0.0);
-        assert_eq!(directive_cost([0.2, 0.0], [0.3, 0.0], &cfg), 100.0);
+        // A goal 1 m ahead: its region starts at the goal.
+        assert_eq!(directive_cost([1.2, 0.0], [1.0, 0.0], &cfg), 0.0);
     }
 
     #[test]
