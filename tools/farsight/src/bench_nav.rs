@@ -327,6 +327,18 @@ pub fn run(a: NavArgs) -> Result<()> {
         }
         return Ok(());
     }
+    anyhow::ensure!(
+        a.trials >= 1,
+        "--trials {}: at least one trial per cell",
+        a.trials
+    );
+    anyhow::ensure!(
+        a.first_seed.checked_add(a.trials as u64).is_some(),
+        "--first-seed {} with --trials {}: the seeds would run past {}",
+        a.first_seed,
+        a.trials,
+        u64::MAX
+    );
     let rule = TimeLimitRule {
         factor: a.time_limit_x,
         cap_s: a.max_time_s,
@@ -880,5 +892,12 @@ mod tests {
         let a = Cli::parse_from(["x", "--jobs", "0"]).nav;
         let e = run(a).unwrap_err().to_string();
         assert!(e.starts_with("--jobs 0:"), "{e}");
+        let a = Cli::parse_from(["x", "--trials", "0"]).nav;
+        let e = run(a).unwrap_err().to_string();
+        assert!(e.starts_with("--trials 0:"), "{e}");
+        let max = u64::MAX.to_string();
+        let a = Cli::parse_from(["x", "--first-seed", &max, "--trials", "1"]).nav;
+        let e = run(a).unwrap_err().to_string();
+        assert!(e.starts_with(&format!("--first-seed {max}")), "{e}");
     }
 }
