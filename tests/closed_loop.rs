@@ -188,7 +188,18 @@ fn assert_same_track(a: &std::path::Path, b: &std::path::Path) {
             .enumerate()
             .find(|(_, (x, y))| x != y)
             .expect("one is a prefix of the other");
-        panic!("the runs part at pose {i}: {la} vs {lb}");
+        // A late command (the simulator waited out its timeout, and the
+        // base coasted) is the usual way two runs part: say so.
+        let summary = |d: &std::path::Path| {
+            std::fs::read_to_string(d.join("summary.toml")).unwrap_or_default()
+        };
+        panic!(
+            "the runs part at pose {i}: {la} vs {lb}\n{}:\n{}\n{}:\n{}",
+            a.display(),
+            summary(a),
+            b.display(),
+            summary(b)
+        );
     }
 }
 

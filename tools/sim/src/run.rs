@@ -446,6 +446,7 @@ pub fn run(a: RunArgs) -> Result<Summary> {
         }
         goals.deliver_history()?;
 
+        let mut older_answer = None;
         let command = match (&mut expert, a.clock) {
             (Some(e), _) => {
                 let (v, w) = e.command(&sim.episode.scenario.world, r.pose(), dt);
@@ -463,11 +464,17 @@ pub fn run(a: RunArgs) -> Result<Summary> {
                     let command = loop {
                         match commands.latest()? {
                             Some(c) if c.stamp.frame_seq >= k => break Some(c),
-                            _ if Instant::now() >= end || bus.termination_requested() => {
-                                break None
+                            // An answer to an earlier frame: the graph
+                            // paired this frame's input with older ones.
+                            Some(c) if c.stamp.frame_seq > 0 => {
+                                older_answer = Some(c.stamp.frame_seq)
                             }
-                            _ => std::thread::sleep(Duration::from_micros(500)),
+                            _ => {}
                         }
+                        if Instant::now() >= end || bus.termination_requested() {
+                            break None;
+                        }
+                        std::thread::sleep(Duration::from_micros(500));
                     };
                     if command.is_some() {
                         for w in &mut awaited {
@@ -489,8 +496,12 @@ pub fn run(a: RunArgs) -> Result<Summary> {
         if !fresh {
             late += 1;
             if late == 1 || late.is_multiple_of(100) {
+                let why = match older_answer {
+                    Some(j) => format!("the newest answer was to frame {j}"),
+                    None => "is a stage down?".to_string(),
+                };
                 eprintln!(
-                    "frame {k}: no finite command from the graph ({late} late so far); is a stage down?"
+                    "frame {k}: no finite command from the graph ({late} late so far); {why}"
                 );
             }
         }
