@@ -5,8 +5,12 @@
 //! `L(tau) = C_directive(tau) + (1 - phi) C_learned(tau) + phi sum_i C_costmap(tau_i)`
 //!
 //! - `C_directive = delta` unless the trajectory ends inside the goal region:
-//!   a rectangle 2 m wide whose centre axis points at the goal, starting 3 m
-//!   toward it (the paper's region goal);
+//!   a rectangle 2 m wide whose centre axis points at the goal, "offset
+//!   towards d by 3m" (section III). The paper gives no length; it must
+//!   reach back within a Husky's 2 s of travel (at most 2 m at the 1 m/s
+//!   of Clearpath's specification), or none of the paper's trajectories
+//!   could end in it. So the offset places the rectangle's centre and
+//!   `region_length_m` (5 m: 0.5-5.5 m toward the goal) is ours;
 //! - `C_learned = -log q(tau | o)` from a learned density model when one is
 //!   configured (0 otherwise, which leaves the hybrid with its geometric and
 //!   directive terms);
@@ -52,9 +56,20 @@ pub struct HipPlannerConfig {
     pub alpha: f64,
     /// Directive penalty for missing the goal region.
     pub delta: f64,
-    /// The goal region: how far toward the goal it starts, and its width.
+    /// The goal region: how far toward the goal its centre is (the
+    /// paper's 3 m), its width across that line (the paper's 2 m) and its
+    /// length along it, which the paper does not give. 5 m was chosen on
+    /// spawns 301-400 of hip-in-distribution, apart from the 300 that
+    /// judge (README, HIP's protocol): 2, 4, 5 and 6 m (regions from 2, 1,
+    /// 0.5 and 0 m) took the Geometric Costmap component to 15, 18, 23 and
+    /// 19 of 98 spawns reached (intervals overlapping), against 9 for a
+    /// region from 3 m on (the reading before), which at most 8 of the
+    /// library's 200 trajectories (ending 0.2-3.6 m out) reach, and none
+    /// with the goal 60 degrees or more to a side. The trajectories all end
+    /// within 3.6 m, so what was chosen is the near edge (0.5 m).
     pub region_offset_m: f64,
     pub region_width_m: f64,
+    pub region_length_m: f64,
     /// The robot's footprint: no trajectory point may bring a disc this
     /// wide over a lethal cell.
     pub robot_radius_m: f64,
@@ -68,6 +83,7 @@ impl Default for HipPlannerConfig {
             delta: 100.0,
             region_offset_m: 3.0,
             region_width_m: 2.0,
+            region_length_m: 5.0,
             robot_radius_m: 0.4,
         }
     }
@@ -89,7 +105,7 @@ impl Validate for HipPlannerConfig {
             .key(
                 "region_offset_m",
                 self.region_offset_m,
-                Range::between(0.0, 100.0).unit("m"),
+                Range::above_to(0.0, 100.0).unit("m"),
             )
             .key(
                 "region_width_m",
@@ -97,16 +113,35 @@ impl Validate for HipPlannerConfig {
                 Range::between(0.0, 100.0).unit("m"),
             )
             .key(
+                "region_length_m",
+                self.region_length_m,
+                Range::above_to(0.0, 200.0).unit("m"),
+            )
+            .key(
                 "robot_radius_m",
                 self.robot_radius_m,
                 Range::between(0.0, 10.0).unit("m"),
             );
     }
+
+    /// The region's near edge: a region reaching behind the robot would
+    /// count a trajectory that backs away as heading for the goal.
+    fn check_rules(&self) -> Result<(), ConfigError> {
+        ConfigError::check(
+            self.region_length_m <= 2.0 * self.region_offset_m,
+            "hip.region_length_m (with hip.region_offset_m)",
+            self.region_length_m,
+            &format!(
+                "at most twice hip.region_offset_m ({} m): the region, centred that far toward the goal, must start at or ahead of the robot",
+                self.region_offset_m
+            ),
+        )
+    }
 }
 
 /// The directive cost of a trajectory ending at `end` for a goal at `goal`
 /// (both robot frame): 0 inside the region, `delta` outside. A goal closer
-/// than the offset moves the region's start to the goal.
+/// than the region's near edge moves that edge to the goal.
 pub fn directive_cost(end: [f64; 2], goal: [f64; 2], cfg: &HipPlannerConfig) -> f64 {
     let d = goal[0].hypot(goal[1]);
     if d < 1e-9 {
@@ -115,8 +150,10 @@ pub fn directive_cost(end: [f64; 2], goal: [f64; 2], cfg: &HipPlannerConfig) -> 
     let (ux, uy) = (goal[0] / d, goal[1] / d);
     let along = end[0] * ux + end[1] * uy;
     let across = -end[0] * uy + end[1] * ux;
+    let near_m = (cfg.region_offset_m - cfg.region_length_m / 2.0).min(d);
+    let far_m = cfg.region_offset_m + cfg.region_length_m / 2.0;
     let inside =
-        along >= cfg.region_offset_m.min(d) - 1e-9 && across.abs() <= cfg.region_width_m / 2.0;
+        along >= near_m - 1e-9 && along <= far_m + 1e-9 && across.abs() <= cfg.region_width_m / 2.0;
     if inside {
         0.0
     } else {
@@ -492,20 +529,49 @@ mod tests {
     #[test]
     fn directive_region_by_hand() {
         let cfg = HipPlannerConfig::default();
-        // Goal 10 m to the left (+y): the region is x in [-1, 1], y >= 3.
+        // Goal 10 m to the left (+y): the region is x in [-1, 1], y in
+        // [0.5, 5.5] (centred 3 m out, 5 m long).
         assert_eq!(directive_cost([0.5, 4.0], [0.0, 10.0], &cfg), 0.0);
+        assert_eq!(
+            directive_cost([0.0, 1.0], [0.0, 10.0], &cfg),
+            0.0,
+            "within a Husky's reach"
+        );
         assert_eq!(
             directive_cost([1.5, 4.0], [0.0, 10.0], &cfg),
             100.0,
             "too far to the side"
         );
         assert_eq!(
-            directive_cost([0.0, 2.0], [0.0, 10.0], &cfg),
+            directive_cost([0.0, 0.3], [0.0, 10.0], &cfg),
             100.0,
-            "short of the offset"
+            "short of the near edge"
         );
-        // A goal 1 m ahead: its region starts at the goal.
-        assert_eq!(directive_cost([1.2, 0.0], [1.0, 0.0], &cfg), 0.0);
+        assert_eq!(
+            directive_cost([0.0, 6.0], [0.0, 10.0], &cfg),
+            100.0,
+            "past the far edge"
+        );
+        // A goal 0.3 m ahead: its region starts at the goal.
+        assert_eq!(directive_cost([0.4, 0.0], [0.3, 0.0], &cfg), 0.0);
+        assert_eq!(directive_cost([0.2, 0.0], [0.3, 0.0], &cfg), 100.0);
+    }
+
+    #[test]
+    fn a_goal_region_reaching_behind_the_robot_or_of_no_length_is_refused() {
+        assert!(HipPlannerConfig::default().validate().is_ok());
+        let behind = HipPlannerConfig {
+            region_length_m: 7.0,
+            ..Default::default()
+        };
+        let e = behind.validate().unwrap_err().to_string();
+        assert!(e.contains("hip.region_length_m") && e.contains('7'), "{e}");
+        let empty = HipPlannerConfig {
+            region_length_m: 0.0,
+            ..Default::default()
+        };
+        let e = empty.validate().unwrap_err().to_string();
+        assert!(e.contains("region_length_m"), "{e}");
     }
 
     #[test]

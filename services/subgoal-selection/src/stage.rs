@@ -186,6 +186,7 @@ impl Validate for SubgoalStageConfig {
                  a guide is for povnav, dstar_lite or hip)",
             )?;
         }
+        self.hip.check_rules()?;
         self.povnav.check_rules()
     }
 }

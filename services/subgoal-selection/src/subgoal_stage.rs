@@ -975,7 +975,7 @@ impl MapPlan {
         self.dirty = false;
         self.next_plan = now + self.period_ns;
         let source = self.planner.source();
-        let path: Vec<[f64; 2]> = match &mut self.planner {
+        let planned: Result<Vec<[f64; 2]>, String> = match &mut self.planner {
             MapPlanner::DStarLite(pl) => {
                 let pl = pl.as_mut().expect("built above");
                 match pl.plan(robot) {
@@ -986,12 +986,9 @@ impl MapPlan {
                             expanded = pl.expanded(),
                             "planned"
                         );
-                        path
+                        Ok(path)
                     }
-                    Err(e) => {
-                        step.health.set(HealthState::DEGRADED, &e.to_string());
-                        return;
-                    }
+                    Err(e) => Err(e.to_string()),
                 }
             }
             MapPlanner::Hip {
@@ -1000,58 +997,32 @@ impl MapPlan {
                 learned,
                 ..
             } => {
-                let Some((h, scaled)) = costmap else {
-                    step.health.set(
-                        HealthState::DEGRADED,
-                        "no costmap yet: HIP has nothing to score",
-                    );
-                    return;
-                };
-                // Off the map is unknown: the scaled value of the unknown cost
-                // would need the map's softmax sum, so count it as free (0)
-                // rather than invent one; the directive still pulls to the goal.
                 let learned = learned.as_deref().filter(|_| learned_fresh);
-                let learner_only = config.hip.learner_only();
-                if learner_only && learned.is_none() {
-                    // The Learner alone sees nothing but the camera: without
-                    // a fresh frame's term it would drive on the directive
-                    // blind.
-                    step.health.set(
-                        HealthState::DEGRADED,
-                        "HIP's Learner alone (phi = 0) has no fresh learned term: nothing to plan",
-                    );
-                    return;
-                }
-                let radius_m = config.hip.robot_radius_m;
-                let clearance_m = required_clearance_m(h, scaled, robot, radius_m);
-                let at = |q: [f64; 2]| {
-                    if learner_only {
-                        return 0.0;
-                    }
-                    let w = p.to_world_frame(q);
-                    if lethal_clearance_m(h, scaled, w, radius_m) < clearance_m {
-                        return f64::INFINITY;
-                    }
-                    match h.cell_index(w[0], w[1]).map(|k| scaled[k]) {
-                        Some(v) if !v.is_nan() => v as f64,
-                        _ => 0.0,
-                    }
+                let frame = HipFrame {
+                    pose: &p,
+                    goal_robot,
                 };
-                match choose(library, goal_robot, at, learned, &config.hip) {
-                    Some(c) => {
-                        tracing::debug!(?c, "HIP choice");
-                        std::iter::once(robot)
-                            .chain(library[c.index].0.iter().map(|&q| p.to_world_frame(q)))
-                            .collect()
-                    }
-                    None => {
-                        step.health.set(
-                            HealthState::DEGRADED,
-                            "every HIP trajectory crosses a lethal cell",
-                        );
-                        return;
-                    }
-                }
+                hip_path(library, costmap.as_ref(), learned, config, frame)
+            }
+        };
+        let path = match planned {
+            Ok(path) => path,
+            Err(why) => {
+                // The frame is answered all the same, with an empty path:
+                // the servo stops on a path it cannot track. Unanswered, a
+                // lock-step simulator would wait out its command timeout
+                // and, in one process, the base would coast on the last
+                // command; neither is a decision this stage made.
+                let empty = Path {
+                    stamp,
+                    frame: PathFrame::WORLD,
+                    camera_id: 0,
+                    points: FixedVec::default(),
+                };
+                step.out.send(self.planned, empty);
+                step.health.set(HealthState::DEGRADED, &why);
+                step.health.output(stamp, now);
+                return;
             }
         };
         let points: Vec<[f32; 2]> = path
@@ -1089,6 +1060,60 @@ impl MapPlan {
         step.health.set(HealthState::OK, "");
         step.health.output(stamp, now);
     }
+}
+
+/// The robot's pose and the goal in its frame, for [`hip_path`].
+struct HipFrame<'a> {
+    pose: &'a Pose,
+    goal_robot: [f64; 2],
+}
+
+/// HIP's choice for one frame (eq. (1) over the library) as a world path
+/// from the robot, or why there is none.
+fn hip_path(
+    library: &[Trajectory],
+    costmap: Option<&(CostmapHeader, Vec<f32>)>,
+    learned: Option<&[f64]>,
+    config: &SubgoalStageConfig,
+    frame: HipFrame<'_>,
+) -> Result<Vec<[f64; 2]>, String> {
+    let Some((h, scaled)) = costmap else {
+        return Err("no costmap yet: HIP has nothing to score".to_string());
+    };
+    let learner_only = config.hip.learner_only();
+    if learner_only && learned.is_none() {
+        // The Learner alone sees nothing but the camera: without a fresh
+        // frame's term it would drive on the directive blind.
+        return Err(
+            "HIP's Learner alone (phi = 0) has no fresh learned term: nothing to plan".to_string(),
+        );
+    }
+    let p = frame.pose;
+    let robot = [p.position_m[0], p.position_m[1]];
+    let radius_m = config.hip.robot_radius_m;
+    let clearance_m = required_clearance_m(h, scaled, robot, radius_m);
+    // Off the map is unknown: the scaled value of the unknown cost would
+    // need the map's softmax sum, so count it as free (0) rather than
+    // invent one; the directive still pulls to the goal.
+    let at = |q: [f64; 2]| {
+        if learner_only {
+            return 0.0;
+        }
+        let w = p.to_world_frame(q);
+        if lethal_clearance_m(h, scaled, w, radius_m) < clearance_m {
+            return f64::INFINITY;
+        }
+        match h.cell_index(w[0], w[1]).map(|k| scaled[k]) {
+            Some(v) if !v.is_nan() => v as f64,
+            _ => 0.0,
+        }
+    };
+    let c = choose(library, frame.goal_robot, at, learned, &config.hip)
+        .ok_or("every HIP trajectory crosses a lethal cell")?;
+    tracing::debug!(?c, "HIP choice");
+    Ok(std::iter::once(robot)
+        .chain(library[c.index].0.iter().map(|&q| p.to_world_frame(q)))
+        .collect())
 }
 
 #[cfg(test)]
@@ -1434,6 +1459,54 @@ mod tests {
             // Nothing new: nothing sent (one output per input on the stamps).
             let out = h.step(Wake::Tick, 1001 * S);
             assert!(out.is_empty(), "{}: {:?}", c.name, topics_of(&out));
+        }
+    }
+
+    #[test]
+    fn a_map_planner_walled_in_answers_its_frame_with_an_empty_path_the_servo_stops_on() {
+        // A lethal ring 2 m round the robot: no path, no admissible HIP
+        // trajectory. Unanswered, a lock-step simulator would wait out its
+        // command timeout and a base coast on the last command.
+        let walled = |stamp: Stamp| {
+            let mut map = costmap(stamp);
+            for (k, cell) in map.data.iter_mut().enumerate() {
+                let (i, j) = ((k / 11) as i64 - 5, (k % 11) as i64 - 5);
+                if i.abs().max(j.abs()) == 2 {
+                    cell.cost_s_per_m = f32::INFINITY;
+                }
+            }
+            map
+        };
+        let planners = cases("");
+        let planners: Vec<_> = planners
+            .iter()
+            .filter(|c| c.outputs.contains(&"nav/path/planned"))
+            .collect();
+        assert_eq!(planners.len(), 2, "D* Lite and HIP");
+        for c in planners {
+            let mut h = c.stage();
+            h.put("state/pose", pose(at(7, 10 * S)));
+            h.put("nav/goal", goal());
+            h.put(c.primary, walled(at(7, 10 * S)));
+            let out = h.step(h.wake_on(c.primary), 10 * S);
+            assert_eq!(topics_of(&out), ["nav/path/planned"], "{}", c.name);
+            let path = Path::try_from(out[0].1.clone()).unwrap();
+            assert!(path.points.is_empty(), "{}: {path:?}", c.name);
+            assert_eq!(path.stamp, at(7, 10 * S), "{}", c.name);
+            assert_eq!(h.health.state(), HealthState::DEGRADED, "{}", c.name);
+            let why = h.health.report().reason.as_str().to_string();
+            assert!(
+                why.contains("no path") || why.contains("lethal"),
+                "{}: {why}",
+                c.name
+            );
+            // The walls gone, the next frame is planned as usual.
+            h.put("state/pose", pose(at(8, 10 * S + S / 10)));
+            c.put_primary(&mut h, at(8, 10 * S + S / 10));
+            let out = h.step(h.wake_on(c.primary), 11 * S);
+            assert_eq!(topics_of(&out), c.outputs, "{}", c.name);
+            let path = Path::try_from(out[0].1.clone()).unwrap();
+            assert!(path.points.len() > 1, "{}: {path:?}", c.name);
         }
     }
 

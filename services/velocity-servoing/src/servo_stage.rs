@@ -326,7 +326,9 @@ impl ServoStage {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use farsight_interfaces::fixed::FixedVec;
     use farsight_interfaces::message::Message;
+    use farsight_interfaces::msg::PathFrame;
     use farsight_stage::runtime::Harness;
 
     const S: u64 = 1_000_000_000;
@@ -493,6 +495,37 @@ mod tests {
         let cmds = commands(h.step(wake, 0));
         assert_eq!(cmds[0].reason, CommandReason::STALE_INPUT);
         assert!(h.health.report().reason.as_str().contains("state/pose"));
+    }
+
+    #[test]
+    fn an_empty_path_a_planner_answers_with_stops_the_robot_on_that_frame() {
+        // What a map planner with no plan sends (subgoal-selection): the
+        // frame gets a stop carrying its stamp, not silence.
+        let mut h = stage("track = \"path\"\nclock = \"stamps\"");
+        let wake = h.wake_on("nav/path/planned");
+        let pose = |seq: u64| Pose {
+            stamp: stamp(10 * S + seq * S / 10, seq),
+            ..Default::default()
+        };
+        let path = |seq: u64, points: &[[f32; 2]]| Path {
+            stamp: stamp(10 * S + seq * S / 10, seq),
+            frame: PathFrame::WORLD,
+            points: FixedVec::from_slice(points).unwrap(),
+            ..Default::default()
+        };
+        h.put("state/pose", pose(1));
+        h.put("nav/path/planned", path(1, &[[0.0, 0.0], [5.0, 0.0]]));
+        let moving = commands(h.step(wake, 0));
+        assert_eq!(moving[0].reason, CommandReason::TRACKING);
+        assert!(moving[0].linear_mps > 0.0, "{moving:?}");
+        h.put("state/pose", pose(2));
+        h.put("nav/path/planned", path(2, &[]));
+        let stop = commands(h.step(wake, 0));
+        assert_eq!(stop.len(), 1);
+        assert_eq!(stop[0].stamp, stamp(10 * S + 2 * S / 10, 2));
+        assert_eq!(stop[0].reason, CommandReason::NO_SUBGOAL);
+        assert_eq!((stop[0].linear_mps, stop[0].angular_radps), (0.0, 0.0));
+        assert!(h.health.report().reason.as_str().contains("empty"));
     }
 
     #[test]

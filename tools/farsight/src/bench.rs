@@ -168,7 +168,10 @@ pub struct NavArgs {
     pub trials: usize,
     /// The first trial's seed: spawns apart from an evaluation's 1..=N, to
     /// tune on without touching the trials that judge. Recorded in the
-    /// protocol.
+    /// protocol. The training chain's worlds use seeds from 50 (`cargo
+    /// xtask train`'s plan), so a seeded scenario there may be one the
+    /// shipped models trained on; HIP's worlds are fixed and the seed
+    /// draws only the spawn.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
     pub first_seed: u64,
     #[arg(long, value_delimiter = ',', default_values_t = ["bug-trap".to_string(), "bridge".to_string(), "bush-wall".to_string(), "road-forest".to_string(), "obstacle-field-1".to_string(), "obstacle-field-3".to_string()])]

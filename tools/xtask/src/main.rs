@@ -792,7 +792,8 @@ fn demo(args: &[String]) -> Result<()> {
 
 /// The worlds of the training chain: (scenario, seed, seconds driven). The
 /// held-out worlds are never trained or validated on; the benchmark's
-/// scenarios use seeds 1..=trials, so seeds here start at 50.
+/// scenarios use seeds 1..=trials, so seeds here start at 50 (a `farsight
+/// bench nav --first-seed` run can reach them, and its help says so).
 struct TrainPlan {
     train: Vec<(&'static str, u64, u32)>,
     val: Vec<(&'static str, u64, u32)>,
