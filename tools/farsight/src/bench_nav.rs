@@ -491,6 +491,7 @@ pub fn run(a: NavArgs) -> Result<()> {
     }
     let (mut frames, mut stage_steps, mut late, t0) = (0u64, 0u64, 0u64, Instant::now());
     let mut reasons: BTreeMap<String, u64> = BTreeMap::new();
+    let (mut stops, mut stop_reasons) = (0u64, BTreeMap::<String, u64>::new());
     let mut done: Vec<Option<TrialRecord>> = vec![None; order.len()];
     // A table row goes out once its trials and every row above it are done.
     let mut printed = 0;
@@ -501,6 +502,10 @@ pub fn run(a: NavArgs) -> Result<()> {
         late += t.late;
         for (why, n) in &t.late_reasons {
             *reasons.entry(why.clone()).or_insert(0) += n;
+        }
+        stops += t.stops;
+        for (why, n) in &t.stop_reasons {
+            *stop_reasons.entry(why.clone()).or_insert(0) += n;
         }
         done[k] = Some(record);
         // The results file keeps the table's order, whatever finished first.
@@ -532,6 +537,10 @@ pub fn run(a: NavArgs) -> Result<()> {
         frames as f64 / wall
     );
     for (why, n) in &reasons {
+        println!("  {n} frames: {why}");
+    }
+    println!("{stops} frames answered with a stop (not the goal reached)");
+    for (why, n) in &stop_reasons {
         println!("  {n} frames: {why}");
     }
     Ok(())
@@ -567,6 +576,8 @@ mod tests {
             late: 0,
             stage_steps: 0,
             late_reasons: BTreeMap::new(),
+            stops: 0,
+            stop_reasons: BTreeMap::new(),
             track: e.track.clone(),
             intervention_points: e.intervention_points.clone(),
             no_command_points: Vec::new(),

@@ -11,7 +11,7 @@
 use crate::graph::Graph;
 use anyhow::{bail, Result};
 use farsight_interfaces::message::Message;
-use farsight_interfaces::msg::{HealthState, VelocityCommand};
+use farsight_interfaces::msg::{CommandReason, HealthState, VelocityCommand};
 use farsight_interfaces::topics;
 use farsight_sim::episode::{Outcome, PoseLog, Summary};
 use farsight_sim::sim_robot::{SimOptions, SimRobot};
@@ -33,6 +33,12 @@ pub struct Trial {
     /// healthy then and its reason (numbers as `#`), or that the answer was
     /// for an older frame; counted per frame.
     pub late_reasons: BTreeMap<String, u64>,
+    /// Frames the graph answered with a stop of its own (no plan, a stale
+    /// input, an e-stop; not the goal reached), by the unhealthy stages'
+    /// reasons as in `late_reasons`: a planner with no way on stops the
+    /// robot rather than leave the frame unanswered.
+    pub stops: u64,
+    pub stop_reasons: BTreeMap<String, u64>,
     /// The driven track and where each intervention happened
     /// (`farsight_sim::episode::Episode`).
     pub track: Vec<[f64; 2]>,
@@ -69,6 +75,7 @@ pub fn drive(graph: &Graph, options: &SimOptions, trace: Option<&Path>) -> Resul
     ex.publish(topics::goal().name(), Message::Goal(sim.goal()));
     let (mut frames, mut late) = (0u64, 0u64);
     let mut late_reasons = BTreeMap::new();
+    let (mut stops, mut stop_reasons) = (0u64, BTreeMap::new());
     let mut no_command_points: Vec<[f64; 2]> = Vec::new();
     loop {
         let stamp = sim.next_stamp(None);
@@ -101,6 +108,13 @@ pub fn drive(graph: &Graph, options: &SimOptions, trace: Option<&Path>) -> Resul
             for why in late_why(&ex, command.is_some(), !answers.is_empty()) {
                 *late_reasons.entry(why).or_insert(0) += 1;
             }
+        } else if command.is_some_and(|c| {
+            c.reason != CommandReason::TRACKING && c.reason != CommandReason::GOAL_REACHED
+        }) {
+            stops += 1;
+            for why in unhealthy(&ex) {
+                *stop_reasons.entry(why).or_insert(0) += 1;
+            }
         }
         if let Some(t) = &mut trace {
             t.record(&sim.episode)?;
@@ -118,6 +132,8 @@ pub fn drive(graph: &Graph, options: &SimOptions, trace: Option<&Path>) -> Resul
         late,
         stage_steps: ex.steps,
         late_reasons,
+        stops,
+        stop_reasons,
         track: sim.episode.track.clone(),
         intervention_points: sim.episode.intervention_points.clone(),
         no_command_points,
@@ -134,8 +150,17 @@ fn late_why(ex: &Executor, answered: bool, any_command: bool) -> Vec<String> {
     if any_command {
         return vec!["a command answering an older frame".into()];
     }
-    let mut out: Vec<String> = ex
-        .health()
+    let mut out = unhealthy(ex);
+    if out.is_empty() {
+        out.push("no command, every stage healthy".into());
+    }
+    out
+}
+
+/// Each stage that is not healthy and its reason, its numbers replaced by
+/// `#` so that reasons counting up tally as one.
+fn unhealthy(ex: &Executor) -> Vec<String> {
+    ex.health()
         .filter(|(_, h)| h.state() != HealthState::OK)
         .map(|(instance, h)| {
             let mut why = format!("{instance}: ");
@@ -149,11 +174,7 @@ fn late_why(ex: &Executor, answered: bool, any_command: bool) -> Vec<String> {
             }
             why
         })
-        .collect();
-    if out.is_empty() {
-        out.push("no command, every stage healthy".into());
-    }
-    out
+        .collect()
 }
 
 fn writes_command(graph: &Graph) -> bool {
