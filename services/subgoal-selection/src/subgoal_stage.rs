@@ -18,8 +18,12 @@
 //!
 //! The costmap planners publish their world path on `nav/path/planned`
 //! (the servo's carrot tracking) and a subgoal `subgoal_distance_m` along
-//! it. Without a goal no method publishes anything: the servo's input then
-//! ages and the robot stays put.
+//! it. A costmap they cannot plan on (D* Lite finds no path, every HIP
+//! trajectory crosses a lethal cell) is answered with an empty path, on
+//! which the servo stops: a lock-step simulator gets its answer, and the
+//! robot stops now rather than when its last command expires. Without a
+//! goal no method publishes anything: the servo's input then ages and the
+//! robot stays put.
 //!
 //! Every output carries the older capture of its required inputs (the
 //! image, bins or costmap; and the pose), and a stale required input gives
