@@ -34,8 +34,9 @@ pub struct LrnHeadConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum NoHotspot {
-    /// No heading: the stage reports DEGRADED and sends nothing, so the
-    /// servo stops once its subgoal is stale.
+    /// No heading: the stage reports DEGRADED and answers the frame with a
+    /// `BLOCKED` subgoal (no heading, no point), which the servo answers
+    /// with a stop on that frame.
     #[default]
     Stop,
     /// Head for the goal, as LRN's robot did with nothing affordable

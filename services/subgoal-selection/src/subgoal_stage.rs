@@ -21,7 +21,9 @@
 //! it. A costmap they cannot plan on (D* Lite finds no path, every HIP
 //! trajectory crosses a lethal cell) is answered with an empty path, on
 //! which the servo stops: a lock-step simulator gets its answer, and the
-//! robot stops now rather than when its last command expires. Without a
+//! robot stops now rather than when its last command expires. LRN's head
+//! answers fresh bins with no affordable observed bin (`no_hotspot =
+//! "stop"`) the same way, with a `BLOCKED` subgoal. Without a
 //! goal no method publishes anything: the servo's input then ages and the
 //! robot stays put.
 //!
@@ -629,25 +631,46 @@ impl Heading {
         if let Some(p) = cx.tracker.pose() {
             self.head.set_robot_yaw(p.yaw_rad);
         }
-        let Some(heading) = self
+        let choice = self
             .head
-            .select(&self.lrn, &scores, &observed, &centers, bearing, distance)
-        else {
-            step.health
-                .set(HealthState::DEGRADED, "no affordable observed bin");
+            .select(&self.lrn, &scores, &observed, &centers, bearing, distance);
+        let Some(stamp) = cx.judge(step.wall_ns, step.health) else {
             return;
         };
-        let Some(stamp) = cx.judge(step.wall_ns, step.health) else {
+        let source = if self.lrn.goal_heuristic {
+            SubgoalSource::GOAL_HEURISTIC
+        } else {
+            SubgoalSource::LRN
+        };
+        let Some(heading) = choice else {
+            // Fresh bins with nothing affordable are a decision, and the
+            // frame is answered with it: a blocked subgoal the servo stops
+            // on. Unanswered, a lock-step simulator would wait out its
+            // command timeout and, in one process, the base would coast on
+            // the last command. No heading and no point: nothing that
+            // reads it (a servo, a guided planner) can steer by it.
+            let blocked = Subgoal {
+                stamp,
+                source,
+                mode: ServoMode::BLOCKED,
+                heading_rad: f32::NAN,
+                x_m: f32::NAN,
+                y_m: f32::NAN,
+                image_u_px: f32::NAN,
+                image_v_px: f32::NAN,
+                proximity_lambda_px: f32::NAN,
+                alignment_phi_rad: f32::NAN,
+            };
+            step.out.send(cx.port.subgoal, blocked);
+            step.health
+                .set(HealthState::DEGRADED, "no affordable observed bin");
+            step.health.output(stamp, step.wall_ns);
             return;
         };
         let d = cx.config.subgoal_distance_m.min(distance);
         let subgoal = Subgoal {
             stamp,
-            source: if self.lrn.goal_heuristic {
-                SubgoalSource::GOAL_HEURISTIC
-            } else {
-                SubgoalSource::LRN
-            },
+            source,
             mode: ServoMode::SAFE,
             heading_rad: heading as f32,
             x_m: (d * heading.cos()) as f32,
@@ -1537,7 +1560,12 @@ mod tests {
             (subgoals(&out), h.health.state(), reason)
         };
         let (sent, state, reason) = run(&lrn(""), 10 * S);
-        assert!(sent.is_empty(), "the default stops: {sent:?}");
+        // The default answers the frame with a stop: a blocked subgoal
+        // with its stamp and nothing to steer by.
+        assert_eq!(sent.len(), 1, "{sent:?}");
+        assert_eq!(sent[0].mode, ServoMode::BLOCKED);
+        assert_eq!(sent[0].stamp.capture_time_ns, 10 * S);
+        assert!(sent[0].heading_rad.is_nan() && sent[0].x_m.is_nan() && sent[0].y_m.is_nan());
         assert_eq!(state, HealthState::DEGRADED);
         assert_eq!(reason, "no affordable observed bin");
         let to_goal = lrn("[lrn]\nno_hotspot = \"goal\"");
@@ -1549,11 +1577,14 @@ mod tests {
         );
         assert_eq!(state, HealthState::DEGRADED);
         assert_eq!(reason, "no affordable observed bin: heading for the goal");
-        // Bins 2 s older than the pose: nothing, fallback or not.
-        let (sent, state, reason) = run(&to_goal, 8 * S);
-        assert!(sent.is_empty(), "stale bins: {sent:?}");
-        assert_eq!(state, HealthState::DEGRADED);
-        assert!(reason.starts_with("bins/angular is 2.00 s old"), "{reason}");
+        // Bins 2 s older than the pose: nothing, stop or fallback, and
+        // the reason is the stale input.
+        for c in [lrn(""), to_goal] {
+            let (sent, state, reason) = run(&c, 8 * S);
+            assert!(sent.is_empty(), "stale bins: {sent:?}");
+            assert_eq!(state, HealthState::DEGRADED);
+            assert!(reason.starts_with("bins/angular is 2.00 s old"), "{reason}");
+        }
     }
 
     /// A guide's subgoal of frame `seq`: 10 m ahead and 10 m left.

@@ -23,8 +23,8 @@ use crate::{
 use farsight_interfaces::clock::InputDeadline;
 use farsight_interfaces::geo::GoalTracker;
 use farsight_interfaces::msg::{
-    CommandReason, EStop, HealthState, NavGoal, Path, Pose, Stamp, Subgoal, SubgoalSource,
-    VelocityCommand,
+    CommandReason, EStop, HealthState, NavGoal, Path, Pose, ServoMode, Stamp, Subgoal,
+    SubgoalSource, VelocityCommand,
 };
 use farsight_interfaces::topics;
 use farsight_stage::inputs::InputId;
@@ -284,6 +284,18 @@ impl ServoStage {
                     s.alignment_phi_rad as f64,
                     &config.servo,
                 )),
+                // A heading law has no "blocked" manoeuvre (POVNav's law
+                // turns in place on its own blocked subgoal, above): a
+                // subgoal that says nothing is affordable, or whose heading
+                // is not a number, stops the robot with that reason rather
+                // than with a zero it calls tracking.
+                Some(s) if s.mode == ServoMode::BLOCKED => {
+                    Err(format!("subgoal from {} is blocked", s.source))
+                }
+                Some(s) if !s.heading_rad.is_finite() => Err(format!(
+                    "subgoal from {} has heading {}",
+                    s.source, s.heading_rad
+                )),
                 Some(s) => Ok(heading_command(s.heading_rad as f64, &config.servo)),
                 None => Err("no subgoal yet".to_string()),
             },
@@ -526,6 +538,36 @@ mod tests {
         assert_eq!(stop[0].reason, CommandReason::NO_SUBGOAL);
         assert_eq!((stop[0].linear_mps, stop[0].angular_radps), (0.0, 0.0));
         assert!(h.health.report().reason.as_str().contains("empty"));
+    }
+
+    #[test]
+    fn a_blocked_or_headingless_heading_subgoal_stops_the_robot_on_that_frame() {
+        // What LRN's head sends when no observed bin is affordable: the
+        // frame gets a stop carrying its stamp, named as such.
+        let mut h = stage("clock = \"stamps\"");
+        let wake = h.wake_on("nav/subgoal");
+        h.put("nav/subgoal", heading(10 * S, 1, 0.3));
+        let moving = commands(h.step(wake, 0));
+        assert_eq!(moving[0].reason, CommandReason::TRACKING);
+        assert!(moving[0].linear_mps > 0.0, "{moving:?}");
+        let blocked = Subgoal {
+            mode: ServoMode::BLOCKED,
+            ..heading(10 * S + S / 10, 2, 0.3)
+        };
+        h.put("nav/subgoal", blocked);
+        let stop = commands(h.step(wake, 0));
+        assert_eq!(stop.len(), 1);
+        assert_eq!(stop[0].stamp, stamp(10 * S + S / 10, 2));
+        assert_eq!(stop[0].reason, CommandReason::NO_SUBGOAL);
+        assert_eq!((stop[0].linear_mps, stop[0].angular_radps), (0.0, 0.0));
+        assert!(h.health.report().reason.as_str().contains("blocked"));
+        for bad in [f32::NAN, f32::INFINITY] {
+            h.put("nav/subgoal", heading(10 * S + S / 5, 3, bad));
+            let stop = commands(h.step(wake, 0));
+            assert_eq!(stop[0].reason, CommandReason::NO_SUBGOAL, "heading {bad}");
+            assert_eq!((stop[0].linear_mps, stop[0].angular_radps), (0.0, 0.0));
+            assert!(h.health.report().reason.as_str().contains("heading"));
+        }
     }
 
     #[test]

@@ -183,3 +183,96 @@ fn writes_command(graph: &Graph) -> bool {
         .get(topics::velocity_command().name())
         .is_some_and(|e| e.writers.iter().any(|w| !w.starts_with("external")))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bench_nav::{sim_options, TrialRules};
+
+    /// LRN's head on bins from a segmentation that finds nothing
+    /// navigable (an HSV range of a colour the renderer never draws:
+    /// saturated magenta), into the heading servo.
+    const NOTHING_AFFORDABLE: &str = r#"
+description = "Test: LRN's head on bins with nothing affordable -> heading servo."
+
+[[node]]
+name = "inference"
+stage = "inference"
+[node.config]
+camera = "front"
+backend = "hsv"
+[[node.config.hsv.ranges]]
+hue_deg = [299.0, 301.0]
+saturation = [0.99, 1.0]
+value = [0.99, 1.0]
+
+[[node]]
+name = "bin-projection"
+stage = "bin-projection"
+[node.config]
+method = "lrn"
+cameras = ["front"]
+[node.config.bins]
+input = "navigability"
+threshold_on = "bins"
+
+[[node]]
+name = "lrn-head"
+stage = "subgoal-selection"
+[node.config]
+method = "lrn"
+clock = "stamps"
+
+[[node]]
+name = "velocity-servoing"
+stage = "velocity-servoing"
+[node.config]
+clock = "stamps"
+subgoal_deadline_s = 2.0
+
+[[external]]
+topic = "camera/front/image"
+from = "farsight-sim"
+
+[[external]]
+topic = "camera/front/info"
+from = "farsight-sim"
+
+[[external]]
+topic = "state/pose"
+from = "farsight-sim"
+
+[[external]]
+topic = "nav/goal"
+from = "farsight-sim"
+
+[[external]]
+topic = "cmd/velocity"
+to = "farsight-sim's base"
+"#;
+
+    #[test]
+    fn a_head_with_nothing_affordable_answers_every_frame_with_a_stop_counted_by_its_reason() {
+        let dir = std::env::temp_dir().join(format!("farsight-lockstep-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("nothing-affordable.toml");
+        std::fs::write(&path, NOTHING_AFFORDABLE).unwrap();
+        let graph = Graph::load(&path);
+        std::fs::remove_dir_all(&dir).unwrap();
+        let graph = graph.unwrap();
+        let options = sim_options(&graph, "bug-trap", 1, &TrialRules::limited_to(3.0));
+        let t = drive(&graph, &options, None).unwrap();
+        assert!(t.frames > 10, "{t:?}");
+        // Every frame answered on time (no simulator timeout, no coasting),
+        // and every answer a stop the head's reason explains.
+        assert_eq!(t.late, 0, "{:?}", t.late_reasons);
+        assert_eq!(t.stops, t.frames, "{:?}", t.stop_reasons);
+        assert_eq!(
+            t.stop_reasons.get("lrn-head: no affordable observed bin"),
+            Some(&t.frames),
+            "{:?}",
+            t.stop_reasons
+        );
+        assert!(t.summary.distance_m < 1e-6, "{:?}", t.summary);
+    }
+}
