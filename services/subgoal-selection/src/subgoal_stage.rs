@@ -23,7 +23,8 @@
 //! which the servo stops: a lock-step simulator gets its answer, and the
 //! robot stops now rather than when its last command expires. LRN's head
 //! answers fresh bins with no affordable observed bin (`no_hotspot =
-//! "stop"`) the same way, with a `BLOCKED` subgoal. Without a
+//! "stop"`) the same way, with a `BLOCKED` subgoal, and a planner it
+//! guides answers that frame with an empty path. Without a
 //! goal no method publishes anything: the servo's input then ages and the
 //! robot stays put.
 //!
@@ -890,6 +891,17 @@ impl MapPlan {
                 return;
             }
         }
+        // A guide that found nothing affordable on this frame (LRN's head,
+        // `no_hotspot = "stop"`) gives no goal to plan toward: the frame is
+        // answered as one with no way on, with an empty path.
+        if cx.guide_in.is_some()
+            && cx.guide.is_some_and(|g| {
+                g.mode == ServoMode::BLOCKED && join_seq.is_none_or(|k| g.stamp.frame_seq == k)
+            })
+        {
+            self.answer_a_blocked_guide(cx, step, fresh_costmap);
+            return;
+        }
         let (Some(&p), Some((bearing, distance))) =
             (cx.tracker.pose(), cx.goal_in_robot_frame(join_seq))
         else {
@@ -1035,20 +1047,7 @@ impl MapPlan {
         let path = match planned {
             Ok(path) => path,
             Err(why) => {
-                // The frame is answered all the same, with an empty path:
-                // the servo stops on a path it cannot track. Unanswered, a
-                // lock-step simulator would wait out its command timeout
-                // and, in one process, the base would coast on the last
-                // command; neither is a decision this stage made.
-                let empty = Path {
-                    stamp,
-                    frame: PathFrame::WORLD,
-                    camera_id: 0,
-                    points: FixedVec::default(),
-                };
-                step.out.send(self.planned, empty);
-                step.health.set(HealthState::DEGRADED, &why);
-                step.health.output(stamp, now);
+                self.answer_with_a_stop(step, stamp, &why);
                 return;
             }
         };
@@ -1086,6 +1085,63 @@ impl MapPlan {
         step.out.send(cx.port.subgoal, subgoal);
         step.health.set(HealthState::OK, "");
         step.health.output(stamp, now);
+    }
+
+    /// Answers the frame with an empty path, on which the servo stops, and
+    /// says why. Unanswered, a lock-step simulator would wait out its
+    /// command timeout and, in one process, the base would coast on the
+    /// last command; neither is a decision this stage made.
+    fn answer_with_a_stop(&self, step: &mut Step<'_>, stamp: Stamp, why: &str) {
+        let empty = Path {
+            stamp,
+            frame: PathFrame::WORLD,
+            camera_id: 0,
+            points: FixedVec::default(),
+        };
+        step.out.send(self.planned, empty);
+        step.health.set(HealthState::DEGRADED, why);
+        step.health.output(stamp, step.wall_ns);
+    }
+
+    /// A blocked guide's frame: its costmap is taken (and counted) but not
+    /// planned on, and the frame, when due, gets a stop. The map is not
+    /// added to the planner's memory: the robot stops, so the next frame's
+    /// map covers the same ground.
+    fn answer_a_blocked_guide(&mut self, cx: &mut Context, step: &mut Step<'_>, mut fresh: bool) {
+        let now = step.wall_ns;
+        if let Some(c) = self.pending.take() {
+            step.health.input();
+            match c.header.validate(c.data.len()) {
+                Ok(()) => {
+                    cx.inputs.consumed(cx.primary_in, c.header.stamp);
+                    fresh = true;
+                }
+                Err(e) => step
+                    .health
+                    .dropped(&format_args!("costmap/{}: {e}", cx.config.costmap)),
+            }
+        }
+        let due = match cx.config.clock {
+            ClockSource::Stamps => fresh,
+            ClockSource::Wall => self.dirty || fresh || now >= self.next_plan,
+        };
+        if !due {
+            return;
+        }
+        let freshness = cx.inputs.check(cx.inputs.now_at(cx.config.clock, now));
+        let stamp = match cx.inputs.output_stamp() {
+            Some(stamp) if !freshness.is_stale() => stamp,
+            _ => {
+                step.health.set(HealthState::DEGRADED, freshness.reason());
+                return;
+            }
+        };
+        self.next_plan = now + self.period_ns;
+        self.answer_with_a_stop(
+            step,
+            stamp,
+            "the guide's subgoal is blocked: nothing to plan toward",
+        );
     }
 }
 
@@ -1637,6 +1693,63 @@ mod tests {
             let out = h.step(h.wake_on(c.primary), 10 * S);
             assert!(out.is_empty(), "{}: {:?}", c.name, topics_of(&out));
             assert_eq!(h.health.report().dropped, 1, "{}", c.name);
+        }
+    }
+
+    #[test]
+    fn a_guided_planner_answers_a_blocked_guides_frame_with_an_empty_path() {
+        // LRN's head with nothing affordable sends a BLOCKED subgoal with
+        // no point: the planner has no goal for that frame, and stops the
+        // robot on it rather than leave it unanswered.
+        const GUIDE: &str = "nav/subgoal/lrn";
+        let planners: Vec<Case> = cases(&format!("guide = \"{GUIDE}\""))
+            .into_iter()
+            .filter(|c| c.outputs.contains(&"nav/path/planned"))
+            .collect();
+        assert_eq!(planners.len(), 2, "D* Lite and HIP");
+        let blocked = |stamp: Stamp| Subgoal {
+            stamp,
+            mode: ServoMode::BLOCKED,
+            heading_rad: f32::NAN,
+            x_m: f32::NAN,
+            y_m: f32::NAN,
+            ..guide(stamp.frame_seq)
+        };
+        for c in planners {
+            let mut h = c.stage();
+            h.put("state/pose", pose(at(7, 10 * S)));
+            h.put(GUIDE, blocked(at(7, 10 * S)));
+            c.put_primary(&mut h, at(7, 10 * S));
+            let out = h.step(h.wake_on(c.primary), 10 * S);
+            assert_eq!(topics_of(&out), ["nav/path/planned"], "{}", c.name);
+            let path = Path::try_from(out[0].1.clone()).unwrap();
+            assert!(path.points.is_empty(), "{}: {path:?}", c.name);
+            assert_eq!(path.stamp.frame_seq, 7, "{}", c.name);
+            assert_eq!(h.health.state(), HealthState::DEGRADED, "{}", c.name);
+            let why = h.health.report().reason.as_str().to_string();
+            assert!(why.contains("blocked"), "{}: {why}", c.name);
+            assert_eq!(h.health.report().dropped, 0, "{}", c.name);
+            // Blocked on frame 8 too, but its costmap 2 s old: no answer
+            // from a stale map, and the reason says so.
+            h.put("state/pose", pose(at(8, 12 * S)));
+            h.put(GUIDE, blocked(at(8, 12 * S)));
+            c.put_primary(&mut h, at(8, 10 * S));
+            let out = h.step(h.wake_on(c.primary), 12 * S);
+            assert!(out.is_empty(), "{}: {:?}", c.name, topics_of(&out));
+            let why = h.health.report().reason.as_str().to_string();
+            assert!(why.contains(" is 2.00 s old"), "{}: {why}", c.name);
+            // The guide finds a way again on frame 9: planned as usual.
+            h.put("state/pose", pose(at(9, 12 * S + S / 10)));
+            let found = Subgoal {
+                stamp: at(9, 12 * S + S / 10),
+                ..guide(9)
+            };
+            h.put(GUIDE, found);
+            c.put_primary(&mut h, at(9, 12 * S + S / 10));
+            let out = h.step(h.wake_on(c.primary), 12 * S);
+            assert_eq!(topics_of(&out), c.outputs, "{}", c.name);
+            let path = Path::try_from(out[0].1.clone()).unwrap();
+            assert!(path.points.len() > 1, "{}: {path:?}", c.name);
         }
     }
 

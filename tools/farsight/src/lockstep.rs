@@ -191,9 +191,10 @@ mod tests {
 
     /// LRN's head on bins from a segmentation that finds nothing
     /// navigable (an HSV range of a colour the renderer never draws:
-    /// saturated magenta), into the heading servo.
+    /// saturated magenta), publishing on `{subgoal}`, and the servo
+    /// tracking `{track}`.
     const NOTHING_AFFORDABLE: &str = r#"
-description = "Test: LRN's head on bins with nothing affordable -> heading servo."
+description = "Test: LRN's head on bins with nothing affordable."
 
 [[node]]
 name = "inference"
@@ -222,6 +223,7 @@ stage = "subgoal-selection"
 [node.config]
 method = "lrn"
 clock = "stamps"
+subgoal_topic = "{subgoal}"
 
 [[node]]
 name = "velocity-servoing"
@@ -229,6 +231,7 @@ stage = "velocity-servoing"
 [node.config]
 clock = "stamps"
 subgoal_deadline_s = 2.0
+track = "{track}"
 
 [[external]]
 topic = "camera/front/image"
@@ -251,28 +254,74 @@ topic = "cmd/velocity"
 to = "farsight-sim's base"
 "#;
 
+    /// The head guiding D* Lite on the fused near field (the servo on its
+    /// path), as `graphs/sim/lrn-dstar.toml`.
+    const GUIDED_PLANNER: &str = r#"
+[[node]]
+name = "costmap-fusion"
+stage = "costmap-fusion"
+[node.config]
+clock = "stamps"
+width_cells = 61
+height_cells = 61
+
+[[node]]
+name = "local-planner"
+stage = "subgoal-selection"
+[node.config]
+method = "dstar_lite"
+clock = "stamps"
+guide = "nav/subgoal/lrn"
+[node.config.planner]
+margin_m = 30.0
+
+[[external]]
+topic = "costmap/local"
+from = "farsight-sim's near-field sensor"
+"#;
+
     #[test]
     fn a_head_with_nothing_affordable_answers_every_frame_with_a_stop_counted_by_its_reason() {
         let dir = std::env::temp_dir().join(format!("farsight-lockstep-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("nothing-affordable.toml");
-        std::fs::write(&path, NOTHING_AFFORDABLE).unwrap();
-        let graph = Graph::load(&path);
+        let cases = [
+            ("heading-servo", "nav/subgoal", "subgoal", "", None),
+            (
+                "guided-planner",
+                "nav/subgoal/lrn",
+                "path",
+                GUIDED_PLANNER,
+                Some("local-planner: the guide's subgoal is blocked: nothing to plan toward"),
+            ),
+        ];
+        for (name, subgoal, track, planner, planner_why) in cases {
+            let path = dir.join(format!("{name}.toml"));
+            let text = NOTHING_AFFORDABLE
+                .replace("{subgoal}", subgoal)
+                .replace("{track}", track)
+                + planner;
+            std::fs::write(&path, text).unwrap();
+            let graph = Graph::load(&path).unwrap();
+            let options = sim_options(&graph, "bug-trap", 1, &TrialRules::limited_to(3.0));
+            let t = drive(&graph, &options, None).unwrap();
+            assert!(t.frames > 10, "{name}: {t:?}");
+            // Every frame answered on time (no simulator timeout, no
+            // coasting), and every answer a stop the head's reason (and a
+            // guided planner's) explains.
+            assert_eq!(t.late, 0, "{name}: {:?}", t.late_reasons);
+            assert_eq!(t.stops, t.frames, "{name}: {:?}", t.stop_reasons);
+            let counted = |why: &str| t.stop_reasons.get(why).copied();
+            assert_eq!(
+                counted("lrn-head: no affordable observed bin"),
+                Some(t.frames),
+                "{name}: {:?}",
+                t.stop_reasons
+            );
+            if let Some(why) = planner_why {
+                assert_eq!(counted(why), Some(t.frames), "{name}: {:?}", t.stop_reasons);
+            }
+            assert!(t.summary.distance_m < 1e-6, "{name}: {:?}", t.summary);
+        }
         std::fs::remove_dir_all(&dir).unwrap();
-        let graph = graph.unwrap();
-        let options = sim_options(&graph, "bug-trap", 1, &TrialRules::limited_to(3.0));
-        let t = drive(&graph, &options, None).unwrap();
-        assert!(t.frames > 10, "{t:?}");
-        // Every frame answered on time (no simulator timeout, no coasting),
-        // and every answer a stop the head's reason explains.
-        assert_eq!(t.late, 0, "{:?}", t.late_reasons);
-        assert_eq!(t.stops, t.frames, "{:?}", t.stop_reasons);
-        assert_eq!(
-            t.stop_reasons.get("lrn-head: no affordable observed bin"),
-            Some(&t.frames),
-            "{:?}",
-            t.stop_reasons
-        );
-        assert!(t.summary.distance_m < 1e-6, "{:?}", t.summary);
     }
 }
