@@ -36,16 +36,21 @@ fn bench_e2e(name: &str, args: &[&str], seconds: &str) -> String {
     stdout
 }
 
+/// The cells of the report's table row that starts with `key`.
+fn table_row<'a>(stdout: &'a str, key: &str) -> Vec<&'a str> {
+    let row = stdout
+        .lines()
+        .find(|l| l.starts_with(&format!("| {key} |")))
+        .unwrap_or_else(|| panic!("no row for {key}:\n{stdout}"));
+    row.split('|').map(str::trim).collect()
+}
+
 #[test]
 fn the_e2e_bench_times_every_hop_from_capture_to_command() {
     let stdout = bench_e2e("e2e", &[], "4");
     let median = |topic: &str| -> f64 {
-        let row = stdout
-            .lines()
-            .find(|l| l.starts_with(&format!("| {topic} |")))
-            .unwrap_or_else(|| panic!("no row for {topic}:\n{stdout}"));
-        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
-        assert!(cells[3].parse::<usize>().unwrap() > 0, "{row}");
+        let cells = table_row(&stdout, topic);
+        assert!(cells[3].parse::<usize>().unwrap() > 0, "{cells:?}");
         cells[4].parse().unwrap()
     };
     let path = [
@@ -64,14 +69,10 @@ fn the_e2e_bench_times_every_hop_from_capture_to_command() {
         "perception/front/navigability -> nav/subgoal (subgoal-selection)",
         "nav/subgoal -> cmd/velocity (velocity-servoing)",
     ] {
-        let row = stdout
-            .lines()
-            .find(|l| l.starts_with(&format!("| {hop} |")))
-            .unwrap_or_else(|| panic!("no row for {hop}:\n{stdout}"));
-        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
-        assert!(cells[2].parse::<usize>().unwrap() > 0, "{row}");
+        let cells = table_row(&stdout, hop);
+        assert!(cells[2].parse::<usize>().unwrap() > 0, "{cells:?}");
         let median: f64 = cells[3].parse().unwrap();
-        assert!(median >= 0.0, "{row}\n{stdout}");
+        assert!(median >= 0.0, "{cells:?}\n{stdout}");
     }
     assert!(stdout.contains("inference alone"), "{stdout}");
     assert!(stdout.contains("capture-to-command median"), "{stdout}");
@@ -113,12 +114,8 @@ fn the_e2e_bench_times_the_fitam_chain_in_the_simulator() {
     ]
     .iter()
     .map(|(topic, stage)| {
-        let row = stdout
-            .lines()
-            .find(|l| l.starts_with(&format!("| {topic} | {stage} |")))
-            .unwrap_or_else(|| panic!("no row for {topic}:\n{stdout}"));
-        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
-        assert!(cells[3].parse::<usize>().unwrap() > 0, "{row}");
+        let cells = table_row(&stdout, &format!("{topic} | {stage}"));
+        assert!(cells[3].parse::<usize>().unwrap() > 0, "{cells:?}");
         cells[4].parse().unwrap()
     })
     .collect();

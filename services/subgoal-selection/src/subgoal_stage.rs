@@ -1136,6 +1136,7 @@ impl MapPlan {
                 return;
             }
         };
+        self.dirty = false;
         self.next_plan = now + self.period_ns;
         self.answer_with_a_stop(
             step,
