@@ -1115,6 +1115,81 @@ mod tests {
         }
     }
 
+    /// D* Lite's invariant after a batch of changes: every rhs is the best
+    /// way through its successors, and the queue holds exactly the
+    /// inconsistent vertices. Mostly small finite-to-finite changes, as a
+    /// Kalman update moves a cell, some blocking or clearing a cell (which
+    /// moves corner tests too), over a searched and repaired planner.
+    #[test]
+    fn after_any_batch_of_changes_every_rhs_is_its_best_successor_and_the_queue_the_inconsistent() {
+        let mut rng = Lcg(5);
+        for trial in 0..30 {
+            let (w, h) = (28, 22);
+            let grid = random_grid(&mut rng, w, h);
+            let (start, goal) = ((1, 1), (w - 2, h - 2));
+            let mut d = DStarLite::new(grid, start, goal, 0.2);
+            d.compute();
+            for round in 0..4 {
+                let p = d.path();
+                if p.len() > 3 {
+                    d.move_start(p[2]);
+                }
+                let changes: Vec<(usize, usize, f32)> = (0..150)
+                    .map(|_| {
+                        let (x, y) = (
+                            (rng.next() * w as f64) as usize,
+                            (rng.next() * h as f64) as usize,
+                        );
+                        let r = rng.next();
+                        let c = if r < 0.1 {
+                            f32::INFINITY
+                        } else if r < 0.55 {
+                            // Dearer or cheaper by a little, as a Kalman
+                            // update moves a cell.
+                            let old = d.grid().get(x, y);
+                            if old.is_finite() {
+                                old * (0.8 + 0.4 * rng.next() as f32)
+                            } else {
+                                1.0
+                            }
+                        } else {
+                            (0.2 + 3.0 * rng.next()) as f32
+                        };
+                        (x, y, c)
+                    })
+                    .collect();
+                d.set_costs(changes);
+                let gi = d.goal_index();
+                for u in 0..w * h {
+                    if u == gi {
+                        continue;
+                    }
+                    assert_eq!(
+                        d.gr[u][RHS].to_bits(),
+                        d.best_successor(u).to_bits(),
+                        "trial {trial} round {round}: vertex {:?}'s rhs",
+                        d.cell(u)
+                    );
+                }
+                let mut queued: Vec<u32> =
+                    d.open.heap.iter().chain(&d.open.far).map(|e| e.1).collect();
+                queued.sort();
+                let inconsistent: Vec<u32> = (0..w * h)
+                    .filter(|&u| d.gr[u][G] != d.gr[u][RHS])
+                    .map(|u| u as u32)
+                    .collect();
+                assert_eq!(queued, inconsistent, "trial {trial} round {round}");
+                assert!(d.dirty.iter().all(|&m| !m), "no vertex left marked");
+                let want = astar(d.grid(), d.start(), goal, 0.2).map(|(_, c)| c);
+                match (want, d.compute()) {
+                    (Some(a), Some(b)) => assert!((a - b).abs() < 1e-6, "A* {a} vs {b}"),
+                    (None, None) => {}
+                    other => panic!("trial {trial} round {round}: {other:?}"),
+                }
+            }
+        }
+    }
+
     #[test]
     fn a_retargeted_planner_plans_as_a_new_one_on_the_same_grid() {
         let mut rng = Lcg(23);
