@@ -12,7 +12,7 @@ use farsight_bin_projection::fitam::slice_heading_bins;
 use farsight_dataset::lrn::{lrn_label, visible_path};
 use farsight_dataset::metrics::{class_weighted_auc, pool_label, roc_auc};
 use farsight_dataset::run::{for_each_frame, RunIndex};
-use farsight_dataset::{fitam::slice_labels, DatasetOptions};
+use farsight_dataset::{fitam::slice_labels, model_input_resizer, model_input_rgb, DatasetOptions};
 use farsight_inference::model_config::ModelConfig;
 use farsight_inference::onnx::{OnnxModel, Timings};
 use farsight_inference::Backend;
@@ -286,5 +286,55 @@ fn shipped_models_are_small_and_say_how_they_were_made() {
         );
         let config = std::fs::read_to_string(dir.join("model.toml")).unwrap();
         assert!(config.contains("Trained by:"), "{config}");
+    }
+}
+
+/// A model knows only frames resized as its dataset builder resized them,
+/// so the stage must resize a camera frame the same way. 7204968 changed
+/// the resize (2-tap bilinear to Pillow's antialiased one) and left
+/// `sim-lrn` trained on the old: with nothing else changed, its LRN
+/// section IV interventions on the bug trap went from 1.4 to 2.8, and no
+/// test noticed. `cargo xtask train` ships beside each model the fixture's
+/// first frame as its build resized it.
+#[test]
+fn shipped_models_see_frames_resized_as_their_training_frames_were() {
+    let mut first = None;
+    for_each_frame(&heldout(), "front", 1, |i, _, h, rgb| {
+        if i == 0 {
+            first = Some((*h, rgb.to_vec()));
+        }
+        Ok(())
+    })
+    .unwrap();
+    let (header, rgb) = first.expect("the fixture has a front camera frame");
+    for name in ["sim-lrn", "sim-fitam"] {
+        let dir = repo_root().join("deploy/models").join(name);
+        let config = ModelConfig::load(&dir.join("model.toml")).unwrap();
+        let (w, h) = (config.input.width, config.input.height);
+        let path = dir.join("input-check.png");
+        let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let (trained_header, trained) = farsight_imaging::decode_png(&bytes).unwrap();
+        assert_eq!(
+            (trained_header.width, trained_header.height, trained.len()),
+            (w, h, (w * h * 3) as usize),
+            "{}: not the model's {w}x{h} RGB input",
+            path.display()
+        );
+        let now = model_input_rgb(&mut model_input_resizer(w, h), &header, &rgb, w, h).unwrap();
+        // One level is rounding; the 2-tap resize moved most pixels by more.
+        let moved = now
+            .iter()
+            .zip(&trained)
+            .filter(|(a, b)| a.abs_diff(**b) > 1)
+            .count();
+        assert_eq!(
+            moved,
+            0,
+            "{name}: {moved} of {} input values differ by more than one level from the frame its \
+             training build resized ({}): the stage's resize changed since it was trained; \
+             retrain it (cargo xtask train --ship)",
+            now.len(),
+            path.display()
+        );
     }
 }

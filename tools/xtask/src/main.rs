@@ -1074,6 +1074,17 @@ fn train_lrn_fitam(cx: &TrainCtx) -> Result<Vec<(PathBuf, PathBuf)>> {
             .arg("--out")
             .arg(&out))?;
     }
+    // The first frame of the held-out fixture as this build resizes it for
+    // the models, shipped beside them: `tests/learned_models.rs` checks that
+    // the stage still resizes a frame as the models' training frames were.
+    let input_check = work.join("data/input-check");
+    let _ = std::fs::remove_dir_all(&input_check);
+    run(Command::new(bin.join("farsight"))
+        .arg("dataset")
+        .args(["--every", "1", "--examples", "0"])
+        .arg(root().join("tests/fixtures/heldout/recording.mcap"))
+        .arg("--out")
+        .arg(&input_check))?;
     let data = |n: &str| work.join(format!("data/{n}"));
     step(4, "train and export LRN");
     run(Command::new(py)
@@ -1142,6 +1153,10 @@ fn train_lrn_fitam(cx: &TrainCtx) -> Result<Vec<(PathBuf, PathBuf)>> {
             "fitam_roc.png"
         };
         made.push((report.join(png), to.join(png)));
+        made.push((
+            input_check.join("images/000000.png"),
+            to.join("input-check.png"),
+        ));
     }
     eprintln!("xtask: LRN and FITAM report in {}", report.display());
     Ok(made)
