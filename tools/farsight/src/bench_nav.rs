@@ -39,7 +39,9 @@
 //! - `lrn_myopic`, `goal_heuristic_myopic`, `traversability_myopic`
 //!   (`graphs/sim/lrn-myopic.toml` and beside it): LRN section IV's three
 //!   heads over Spot's memoryless 16 m local stack; `lrn_myopic_360`
-//!   (`graphs/sim/lrn-myopic-360.toml`) the first on four cameras all round;
+//!   (`graphs/sim/lrn-myopic-360.toml`) the first on four cameras all round,
+//!   `lrn_myopic_pixels` (`graphs/sim/lrn-myopic-pixels.toml`) with LRN's
+//!   own threshold rule (on pixels, at 0.3; the goal where none passes);
 //! - the POVNav Jackal rows and HIP's rows: see their graphs.
 //!
 //! `--list` prints the rows and their graph files (the process tests take
@@ -90,7 +92,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 /// The benchmark's rows: name and graph file (relative to the repository).
-pub const METHODS: [(&str, &str); 22] = [
+pub const METHODS: [(&str, &str); 23] = [
     ("lrn_learned", "graphs/sim/lrn.toml"),
     ("goal_heuristic", "graphs/sim/lrn-goal-heuristic.toml"),
     ("dstar_no_far_field", "graphs/sim/dstar-lite.toml"),
@@ -107,6 +109,7 @@ pub const METHODS: [(&str, &str); 22] = [
     ("lrn_local_planner", "graphs/sim/lrn-dstar.toml"),
     ("lrn_myopic", "graphs/sim/lrn-myopic.toml"),
     ("lrn_myopic_360", "graphs/sim/lrn-myopic-360.toml"),
+    ("lrn_myopic_pixels", "graphs/sim/lrn-myopic-pixels.toml"),
     (
         "goal_heuristic_myopic",
         "graphs/sim/goal-heuristic-myopic.toml",
@@ -707,7 +710,7 @@ mod tests {
             let (_, g) = METHODS.iter().find(|(n, _)| *n == m).unwrap();
             Graph::load(&crate::graph::repo_file(g).unwrap()).unwrap()
         };
-        let pairs: [(&str, &str, &[&str]); 12] = [
+        let pairs: [(&str, &str, &[&str]); 13] = [
             (
                 // FITAM's row against its "no far field" baseline: the far
                 // field (ground-truth bins) and fusion answering it. The
@@ -793,6 +796,17 @@ mod tests {
                     "node inference-left only in the second",
                     "node inference-rear only in the second",
                     "node inference-right only in the second",
+                ],
+            ),
+            (
+                // LRN's own threshold rule: on the heatmap's pixels, and
+                // the goal where no pixel passes.
+                "lrn_myopic",
+                "lrn_myopic_pixels",
+                &[
+                    "node bin-projection: bins.h_thresh",
+                    "node bin-projection: bins.threshold_on",
+                    "node lrn-head: lrn.no_hotspot",
                 ],
             ),
             (
