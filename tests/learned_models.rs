@@ -307,7 +307,7 @@ fn shipped_models_see_frames_resized_as_their_training_frames_were() {
     })
     .unwrap();
     let (header, rgb) = first.expect("the fixture has a front camera frame");
-    for name in ["sim-lrn", "sim-fitam"] {
+    for name in ["sim-lrn", "sim-fitam", "sim-hip"] {
         let dir = repo_root().join("deploy/models").join(name);
         let config = ModelConfig::load(&dir.join("model.toml")).unwrap();
         let (w, h) = (config.input.width, config.input.height);

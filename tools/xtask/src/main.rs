@@ -996,6 +996,23 @@ fn train(args: &[String]) -> Result<()> {
     Ok(())
 }
 
+/// The first frame of the held-out fixture resized by this build for a
+/// `size` (WxH) model input, as the training data it labels is resized:
+/// shipped beside each model as `input-check.png`, so that
+/// `tests/learned_models.rs` can check that the stage still resizes a
+/// frame as the model's training frames were.
+fn input_check(cx: &TrainCtx, size: &str) -> Result<PathBuf> {
+    let out = cx.work.join(format!("input-check-{size}"));
+    let _ = std::fs::remove_dir_all(&out);
+    run(Command::new(cx.bin.join("farsight"))
+        .arg("dataset")
+        .args(["--every", "1", "--examples", "0", "--image-size", size])
+        .arg(root().join("tests/fixtures/heldout/recording.mcap"))
+        .arg("--out")
+        .arg(&out))?;
+    Ok(out.join("images/000000.png"))
+}
+
 /// Steps 2-6: LRN's and FITAM's recordings, labels, models and held-out
 /// report. Returns what `--ship` copies (made file, place in deploy/models).
 fn train_lrn_fitam(cx: &TrainCtx) -> Result<Vec<(PathBuf, PathBuf)>> {
@@ -1074,17 +1091,7 @@ fn train_lrn_fitam(cx: &TrainCtx) -> Result<Vec<(PathBuf, PathBuf)>> {
             .arg("--out")
             .arg(&out))?;
     }
-    // The first frame of the held-out fixture as this build resizes it for
-    // the models, shipped beside them: `tests/learned_models.rs` checks that
-    // the stage still resizes a frame as the models' training frames were.
-    let input_check = work.join("data/input-check");
-    let _ = std::fs::remove_dir_all(&input_check);
-    run(Command::new(bin.join("farsight"))
-        .arg("dataset")
-        .args(["--every", "1", "--examples", "0"])
-        .arg(root().join("tests/fixtures/heldout/recording.mcap"))
-        .arg("--out")
-        .arg(&input_check))?;
+    let input_check = input_check(cx, "160x96")?;
     let data = |n: &str| work.join(format!("data/{n}"));
     step(4, "train and export LRN");
     run(Command::new(py)
@@ -1153,10 +1160,7 @@ fn train_lrn_fitam(cx: &TrainCtx) -> Result<Vec<(PathBuf, PathBuf)>> {
             "fitam_roc.png"
         };
         made.push((report.join(png), to.join(png)));
-        made.push((
-            input_check.join("images/000000.png"),
-            to.join("input-check.png"),
-        ));
+        made.push((input_check.clone(), to.join("input-check.png")));
     }
     eprintln!("xtask: LRN and FITAM report in {}", report.display());
     Ok(made)
@@ -1244,7 +1248,11 @@ fn train_hip(cx: &TrainCtx) -> Result<Vec<(PathBuf, PathBuf)>> {
     std::fs::write(hip_out.join("TRAINED.md"), hip_provenance)
         .map_err(|e| format!("sim-hip: {e}"))?;
     let to = root().join("deploy/models/sim-hip");
-    Ok(["model.onnx", "model.toml", "TRAINED.md"]
+    let mut made: Vec<_> = ["model.onnx", "model.toml", "TRAINED.md"]
         .map(|f| (hip_out.join(f), to.join(f)))
-        .to_vec())
+        .to_vec();
+    // `farsight-sim hip-dataset` resizes its views to 128x72 with the
+    // same code as `farsight dataset`.
+    made.push((input_check(cx, "128x72")?, to.join("input-check.png")));
+    Ok(made)
 }
