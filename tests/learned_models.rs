@@ -331,8 +331,8 @@ fn shipped_models_see_frames_resized_as_their_training_frames_were() {
             moved,
             0,
             "{name}: {moved} of {} input values differ by more than one level from the frame its \
-             training build resized ({}): the stage's resize changed since it was trained; \
-             retrain it (cargo xtask train --ship)",
+             training build resized ({}): the stage's resize changed since it was trained \
+             (or tests/fixtures/heldout was remade); retrain it (cargo xtask train --ship)",
             now.len(),
             path.display()
         );

@@ -333,6 +333,11 @@ fn measure(a: &E2eArgs, prefix: &str) -> Result<Measured> {
             {
                 return Ok(true)
             }
+            (_, Some((t, _))) if t.elapsed().as_secs_f64() >= a.seconds + 300.0 => bail!(
+                "no measured frame reached {} in {:.0} s of measuring (see its demo.log)",
+                path[path.len() - 1].0,
+                t.elapsed().as_secs_f64()
+            ),
             // The run ended (a simulated drive reached its goal).
             (_, Some(_)) if last_command.elapsed() > Duration::from_secs(20) => {
                 eprintln!("no command for 20 s: the run ended; reporting what was measured");

@@ -590,12 +590,16 @@ fn fixtures(which: &[String]) -> Result<()> {
     Ok(())
 }
 
+/// The held-out fixture's recording, relative to the repository.
+const HELDOUT_RECORDING: &str = "tests/fixtures/heldout/recording.mcap";
+
 /// `tests/fixtures/heldout/`: 30 s of a random world no training run uses
 /// (seed 203), driven by the expert and recorded by the simulator with every
-/// 5th camera frame, for the shipped models' floor tests.
+/// 5th camera frame, for the shipped models' floor tests and input checks.
 fn heldout_fixture() -> Result<()> {
-    let dir = root().join("tests/fixtures/heldout");
-    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let recording = root().join(HELDOUT_RECORDING);
+    let dir = recording.parent().expect("a folder");
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     let out = root().join("target/fixture-heldout");
     run(Command::new(root().join("target/release/farsight-sim"))
         .args([
@@ -610,7 +614,7 @@ fn heldout_fixture() -> Result<()> {
         .args(["--max-time-s", "30", "--record-every", "5", "--out"])
         .arg(&out)
         .arg("--record")
-        .arg(dir.join("recording.mcap"))
+        .arg(&recording)
         .env(
             "FARSIGHT_IPC_PREFIX",
             format!("heldout{}_", std::process::id()),
@@ -1007,7 +1011,7 @@ fn input_check(cx: &TrainCtx, size: &str) -> Result<PathBuf> {
     run(Command::new(cx.bin.join("farsight"))
         .arg("dataset")
         .args(["--every", "1", "--examples", "0", "--image-size", size])
-        .arg(root().join("tests/fixtures/heldout/recording.mcap"))
+        .arg(root().join(HELDOUT_RECORDING))
         .arg("--out")
         .arg(&out))?;
     Ok(out.join("images/000000.png"))
