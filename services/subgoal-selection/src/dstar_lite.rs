@@ -120,7 +120,7 @@ impl CostGrid {
     /// inner loops spent most of their time in the general neighbour walk.
     fn around(&self, i: usize) -> Around {
         let w = self.width;
-        let (x, y) = (i % w, i / w);
+        let (x, y) = self.cell_of(i);
         if x > 0 && y > 0 && x + 1 < w && y + 1 < self.height {
             let b = |j: usize| Self::blocked(self.costs[j]);
             let (east, west, south, north) = (b(i + 1), b(i - 1), b(i + w), b(i - w));
@@ -162,6 +162,19 @@ impl CostGrid {
             }
         }
         a
+    }
+
+    /// Cell `i`'s `(x, y)`, in one 32-bit division where the grid allows
+    /// (D* Lite's always does): every key and neighbourhood read computes
+    /// a cell, and a 64-bit division was a tenth of a repair.
+    fn cell_of(&self, i: usize) -> (usize, usize) {
+        match (u32::try_from(i), u32::try_from(self.width)) {
+            (Ok(i), Ok(w)) => {
+                let y = i / w;
+                ((i - y * w) as usize, y as usize)
+            }
+            _ => (i % self.width, i / self.width),
+        }
     }
 
     /// [`Self::step_cost`] of a step between `i` and its `k`-th neighbour
@@ -331,6 +344,11 @@ struct VertexQueue {
     far: Vec<(Key, u32)>,
     /// No vertex in `far` has a first key component below this.
     bound: f64,
+    /// Nor below this (a lower bound, exact after each scan of `far`):
+    /// the bound rises at nearly every repair, and a far-field trial's
+    /// `far` holds hundreds of thousands of vertices behind the robot
+    /// that no rise reaches, so a rise below it skips the scan.
+    far_least: f64,
     /// Where each vertex sits: its index in `heap`, [`Self::FAR`] with its
     /// index in `far`, or [`Self::ABSENT`].
     place: Vec<u32>,
@@ -353,6 +371,7 @@ impl VertexQueue {
             heap: Vec::new(),
             far: Vec::new(),
             bound: f64::INFINITY,
+            far_least: f64::INFINITY,
             place: vec![Self::ABSENT; vertices],
         }
     }
@@ -368,7 +387,20 @@ impl VertexQueue {
     /// `total_cmp` cost a fifth of every heap step.
     fn before(a: &(Key, u32), b: &(Key, u32)) -> bool {
         debug_assert!(a.0 .0 >= 0.0 && a.0 .1 >= 0.0 && b.0 .0 >= 0.0 && b.0 .1 >= 0.0);
-        (a.0 .0.to_bits(), a.0 .1.to_bits(), a.1) < (b.0 .0.to_bits(), b.0 .1.to_bits(), b.1)
+        // Without branches: which child is least is a coin toss the branch
+        // predictor loses, at every level of every pop.
+        let (a1, b1) = (a.0 .0.to_bits(), b.0 .0.to_bits());
+        let (a2, b2) = (a.0 .1.to_bits(), b.0 .1.to_bits());
+        (a1 < b1) | ((a1 == b1) & ((a2 < b2) | ((a2 == b2) & (a.1 < b.1))))
+    }
+
+    /// The place of the least of the entries at `i` and `j`.
+    fn least_of(&self, i: usize, j: usize) -> usize {
+        if Self::before(&self.heap[j], &self.heap[i]) {
+            j
+        } else {
+            i
+        }
     }
 
     /// The first vertex in key order, moving waiting ones into the heap
@@ -408,22 +440,69 @@ impl VertexQueue {
         if b > self.bound {
             self.raise_bound(b);
         } else {
-            self.bound = b;
+            self.lower_bound(b);
+        }
+    }
+
+    /// Moves the heap's vertices keyed at or above `b` out to wait, and
+    /// rebuilds the heap from the rest. The start's key falls as the robot
+    /// moves (its g drops by the cost travelled, km rises only by the
+    /// heuristic's cheaper distance), so each repair's bound is below the
+    /// last: what the last search left in the heap between the two would
+    /// otherwise stay there, and every pop of every later repair walks
+    /// past it (FITAM's loop: a heap of thousands more, a fifth of the
+    /// repair).
+    fn lower_bound(&mut self, b: f64) {
+        self.bound = b;
+        if self.heap.iter().all(|e| !self.waits(e.0)) {
+            return;
+        }
+        let mut kept = 0;
+        for i in 0..self.heap.len() {
+            let e = self.heap[i];
+            if self.waits(e.0) {
+                self.far_push(e);
+            } else {
+                self.heap[kept] = e;
+                kept += 1;
+            }
+        }
+        self.heap.truncate(kept);
+        for (i, e) in self.heap.iter().enumerate() {
+            self.place[e.1 as usize] = i as u32;
+        }
+        if kept > 1 {
+            for i in (0..=(kept - 2) / Self::ARITY).rev() {
+                self.sift_down(i);
+            }
         }
     }
 
     /// Moves the waiting vertices keyed below `b` into the heap.
     fn raise_bound(&mut self, b: f64) {
         self.bound = b;
-        let mut i = 0;
+        if self.far_least >= b {
+            return;
+        }
+        let (mut i, mut least) = (0, f64::INFINITY);
         while i < self.far.len() {
-            if self.far[i].0 .0 < b {
+            let k1 = self.far[i].0 .0;
+            if k1 < b {
                 let e = self.far_take(i);
                 self.heap_push(e);
             } else {
+                least = least.min(k1);
                 i += 1;
             }
         }
+        self.far_least = least;
+    }
+
+    /// Puts `e` in `far` (its vertex's place included).
+    fn far_push(&mut self, e: (Key, u32)) {
+        self.place[e.1 as usize] = Self::FAR | self.far.len() as u32;
+        self.far_least = self.far_least.min(e.0 .0);
+        self.far.push(e);
     }
 
     /// Takes entry `i` out of `far` (its vertex's place is the caller's).
@@ -450,15 +529,13 @@ impl VertexQueue {
     /// Queues `v` with key `k`, or re-keys it if queued.
     fn set(&mut self, v: usize, k: Key) {
         match self.place[v] {
-            Self::ABSENT if self.waits(k) => {
-                self.place[v] = Self::FAR | self.far.len() as u32;
-                self.far.push((k, v as u32));
-            }
+            Self::ABSENT if self.waits(k) => self.far_push((k, v as u32)),
             Self::ABSENT => self.heap_push((k, v as u32)),
             p if p & Self::FAR != 0 => {
                 let i = (p & !Self::FAR) as usize;
                 if self.waits(k) {
                     self.far[i].0 = k;
+                    self.far_least = self.far_least.min(k.0);
                 } else {
                     self.far_take(i);
                     self.heap_push((k, v as u32));
@@ -504,6 +581,7 @@ impl VertexQueue {
         self.heap.clear();
         self.far.clear();
         self.bound = f64::INFINITY;
+        self.far_least = f64::INFINITY;
     }
 
     /// How many vertices are queued.
@@ -540,12 +618,14 @@ impl VertexQueue {
             if first >= n {
                 break;
             }
-            let mut least = first;
-            for c in first + 1..(first + Self::ARITY).min(n) {
-                if Self::before(&self.heap[c], &self.heap[least]) {
-                    least = c;
-                }
-            }
+            let least = if first + Self::ARITY <= n {
+                // A tournament of two pairs: two compares deep, not three.
+                let a = self.least_of(first, first + 1);
+                let b = self.least_of(first + 2, first + 3);
+                self.least_of(a, b)
+            } else {
+                (first + 1..n).fold(first, |least, c| self.least_of(least, c))
+            };
             if !Self::before(&self.heap[least], &e) {
                 break;
             }
@@ -649,12 +729,7 @@ impl DStarLite {
     }
 
     fn cell(&self, i: usize) -> (usize, usize) {
-        // One division, in 32 bits (vertex indices fit, see `new`): every
-        // key computes a vertex's cell, and a 64-bit division was a tenth
-        // of a repair.
-        let (i32_, w) = (i as u32, self.grid.width as u32);
-        let y = i32_ / w;
-        ((i32_ - y * w) as usize, y as usize)
+        self.grid.cell_of(i)
     }
 
     fn key(&self, i: usize) -> Key {
@@ -1014,7 +1089,7 @@ mod tests {
                 .map(|(&v, &k)| (k, v))
                 .min_by(|a, b| a.0.cmp(&b.0).then(a.1.cmp(&b.1)))
         };
-        let (mut spilled, mut waited) = (0, 0);
+        let (mut spilled, mut waited, mut evicted) = (0, 0, 0);
         for step in 0..20_000 {
             let v = (rng.next() * n as f64) as usize;
             let r = rng.next();
@@ -1040,11 +1115,18 @@ mod tests {
                     model.remove(&v);
                 }
             } else {
-                let before = q.far.len();
+                let (before, heap_before) = (q.far.len(), q.heap.len());
                 q.set_bound((rng.next() * 100.0).floor());
                 spilled += usize::from(q.far.len() < before);
+                evicted += usize::from(q.heap.len() < heap_before);
             }
             waited = waited.max(q.far.len());
+            // The scan a rising bound skips must have nothing to move.
+            assert!(
+                q.far.iter().all(|e| e.0 .0 >= q.far_least),
+                "step {step}: a waiting key below far_least {}",
+                q.far_least
+            );
             assert_eq!(q.len(), model.len());
             for (&v, &k) in &model {
                 let p = q.place[v];
@@ -1056,10 +1138,10 @@ mod tests {
                 assert_eq!(e, (k, v as u32), "step {step}: vertex {v}'s place");
             }
         }
-        // Both halves were used.
+        // Both halves were used, both ways.
         assert!(
-            waited > 20 && spilled > 20,
-            "{waited} waiting at most, {spilled} spills"
+            waited > 20 && spilled > 20 && evicted > 20,
+            "{waited} waiting at most, {spilled} spills, {evicted} evictions"
         );
         q.clear();
         assert_eq!((q.len(), q.top()), (0, None));
